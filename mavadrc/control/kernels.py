@@ -1,0 +1,305 @@
+"""Discrete-time control kernels: Han's functions, the TD, both ESOs, NLSEF, LADRC and PD.
+
+Everything here is a pure function over floats and float64 arrays (no I/O, no clocks), compiled
+with numba.  A channel controller is two small vectors: a *state* vector (``S_*`` indices) and a
+*parameter* vector (``P_*`` indices).  The classes in :mod:`mavadrc.control.channels` are thin
+holders of those vectors; the position and attitude controllers and batch experiments keep one row
+per channel in a 2-D array and call :func:`channel_update` on each row.
+
+The laws are the corrected ones of the project's ADRC notes (see the README, "Corrections to the
+thesis"): ``d = r*h^2`` in ``fhan``; the TD is a discrete recursion at the real step; the NLSEF is
+``u0 = -fhan(e1, c*e2, r, h1)`` and ``u = (u0 + rddot - z3)/b0``; the LESO's second state
+integrates ``z3 - l2*(z1 - y) + b0*u``; PD and LADRC use ``z2 - rdot`` for the rate error.
+
+Observers are always fed the input that was *applied* over the last step (after limits), which is
+what ``S_U`` holds.  A caller that limits the command further (tilt limits, a mixer) overwrites
+``S_U`` with what it really applied.
+"""
+
+import math
+
+import numpy as np
+
+from ._jit import jit
+
+# --- channel kinds -------------------------------------------------------------------------------
+KIND_PD = 0
+KIND_LADRC = 1
+KIND_HAN = 2
+
+# --- state vector layout -------------------------------------------------------------------------
+S_Z1 = 0  # observer: output estimate
+S_Z2 = 1  # observer: rate estimate
+S_Z3 = 2  # observer: total disturbance estimate (acceleration units of the channel)
+S_U = 3  # input applied over the last step (after limits)
+S_V1 = 4  # TD: tracked reference
+S_V2 = 5  # TD: its derivative
+S_INIT = 6  # 1.0 once initialised from a measurement
+S_YPREV = 7  # PD: previous measurement (for differentiation when no rate is measured)
+S_U0 = 8  # virtual control u0 (before disturbance cancellation and division by b0)
+S_FH = 9  # TD: acceleration of the tracked reference
+NS = 10
+
+# --- parameter vector layout ---------------------------------------------------------------------
+P_KIND = 0
+P_H = 1  # controller step (s)
+P_B0 = 2  # nominal input gain
+P_UMIN = 3
+P_UMAX = 4
+P_KP = 5  # LADRC / PD proportional gain (kp = wc^2)
+P_KD = 6  # LADRC / PD derivative gain (kd = 2 wc)
+P_L1 = 7  # LESO gains: current-observer Lc (ZOH) or continuous l (Euler)
+P_L2 = 8
+P_L3 = 9
+P_OBS = 10  # LESO discretisation: OBS_ZOH or OBS_EULER
+P_R0 = 11  # TD speed factor (acceleration bound)
+P_H0 = 12  # TD filter factor (>= h)
+P_R = 13  # NLSEF fhan: acceleration bound r
+P_C = 14  # NLSEF fhan: damping c
+P_H1 = 15  # NLSEF fhan: precision factor h1
+P_B01 = 16  # NLESO gains (Han's convention: beta0i multiply the error, the step h multiplies all)
+P_B02 = 17
+P_B03 = 18
+P_DELTA = 19  # NLESO fal linear zone
+P_TD = 20  # 1.0: HanADRC tracks the reference with its TD; 0.0: uses (r, rdot) directly
+P_LAW = 21  # HanADRC law: LAW_FHAN or LAW_FAL
+P_K1 = 22  # fal-form NLSEF gains and exponents
+P_K2 = 23
+P_A1 = 24
+P_A2 = 25
+P_DL = 26  # fal-form NLSEF linear zone
+NP = 27
+
+OBS_ZOH = 0.0
+OBS_EULER = 1.0
+LAW_FHAN = 0.0
+LAW_FAL = 1.0
+
+
+@jit
+def _sign(x):
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return 0.0
+
+
+@jit
+def fhan(x1, x2, r, h):
+    """Han's discrete time-optimal synthesis function (ADRC notes, section 1).
+
+    Returns the acceleration that brings the double integrator (x1, x2) to the origin fastest
+    with acceleration bound ``r`` when sampled with step ``h``.  ``d = r*h^2`` (the thesis prints
+    ``h*r^2``, which makes a TD step overshoot and never settle).
+    """
+    d = r * h * h
+    a0 = h * x2
+    y = x1 + a0
+    a1 = math.sqrt(d * (d + 8.0 * abs(y)))
+    a2 = a0 + _sign(y) * (a1 - d) * 0.5
+    sy = (_sign(y + d) - _sign(y - d)) * 0.5
+    a = (a0 + y - a2) * sy + a2
+    sa = (_sign(a + d) - _sign(a - d)) * 0.5
+    return -r * (a / d - _sign(a)) * sa - r * _sign(a)
+
+
+@jit
+def fal(e, alpha, delta):
+    """Han's power function: linear (slope delta^(alpha-1)) inside |e| <= delta, |e|^alpha outside."""
+    if abs(e) <= delta:
+        return e / delta ** (1.0 - alpha)
+    return abs(e) ** alpha * _sign(e)
+
+
+@jit
+def td_step(s, p, v):
+    """One step of the tracking differentiator on reference ``v``: updates S_V1, S_V2, S_FH."""
+    h = p[P_H]
+    fh = fhan(s[S_V1] - v, s[S_V2], p[P_R0], p[P_H0])
+    s[S_V1] += h * s[S_V2]
+    s[S_V2] += h * fh
+    s[S_FH] = fh
+
+
+@jit
+def nleso_step(s, p, y):
+    """Han's nonlinear ESO, forward-Euler recursion, fed the applied input S_U of the last step."""
+    h = p[P_H]
+    delta = p[P_DELTA]
+    z1 = s[S_Z1]
+    z2 = s[S_Z2]
+    z3 = s[S_Z3]
+    e = z1 - y
+    s[S_Z1] = z1 + h * (z2 - p[P_B01] * e)
+    s[S_Z2] = z2 + h * (z3 - p[P_B02] * fal(e, 0.5, delta) + p[P_B0] * s[S_U])
+    s[S_Z3] = z3 - h * p[P_B03] * fal(e, 0.25, delta)
+
+
+@jit
+def leso_step(s, p, y):
+    """Linear ESO fed the applied input S_U of the last step.
+
+    ZOH current observer (default): predict with the exact discretisation of the triple
+    integrator, then correct with the new measurement; the poles lie at exp(-wo*h).  Euler: the
+    forward-Euler recursion of the continuous observer (poles at 1 - wo*h).
+    """
+    h = p[P_H]
+    b0u = p[P_B0] * s[S_U]
+    z1 = s[S_Z1]
+    z2 = s[S_Z2]
+    z3 = s[S_Z3]
+    if p[P_OBS] == OBS_ZOH:
+        zp1 = z1 + h * z2 + 0.5 * h * h * (z3 + b0u)
+        zp2 = z2 + h * (z3 + b0u)
+        e = y - zp1
+        s[S_Z1] = zp1 + p[P_L1] * e
+        s[S_Z2] = zp2 + p[P_L2] * e
+        s[S_Z3] = z3 + p[P_L3] * e
+    else:
+        e = y - z1
+        s[S_Z1] = z1 + h * (z2 + p[P_L1] * e)
+        s[S_Z2] = z2 + h * (z3 + p[P_L2] * e + b0u)
+        s[S_Z3] = z3 + h * p[P_L3] * e
+
+
+@jit
+def _clip(u, lo, hi):
+    if u > hi:
+        return hi
+    if u < lo:
+        return lo
+    return u
+
+
+@jit
+def channel_init(s, y, r, rdot):
+    """Anti-peaking start: observer at the first measurement, TD at the measurement too.
+
+    Starting the TD at y (not at r) lets the classical ADRC arrange the transient from where the
+    plant is to the reference, as the TD is meant to.
+    """
+    s[S_Z1] = y
+    s[S_Z2] = 0.0
+    s[S_Z3] = 0.0
+    s[S_U] = 0.0
+    s[S_V1] = y
+    s[S_V2] = 0.0
+    s[S_FH] = 0.0
+    s[S_YPREV] = y
+    s[S_U0] = 0.0
+    s[S_INIT] = 1.0
+
+
+@jit
+def channel_update(s, p, y, ydot, r, rdot, rddot):
+    """One control step of a channel of any kind; returns the limited command u.
+
+    ``ydot`` is a measured rate, used by PD only (NaN: PD differentiates y).  Non-finite y, r,
+    rdot or rddot leave the state untouched and return NaN, so a bad sample never enters the
+    observer; the caller turns that into an error.
+    """
+    if not (math.isfinite(y) and math.isfinite(r) and math.isfinite(rdot) and math.isfinite(rddot)):
+        return math.nan
+    if s[S_INIT] == 0.0:
+        channel_init(s, y, r, rdot)
+    kind = p[P_KIND]
+    b0 = p[P_B0]
+    if kind == KIND_LADRC:
+        leso_step(s, p, y)
+        u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
+        u = (u0 - s[S_Z3]) / b0
+    elif kind == KIND_HAN:
+        nleso_step(s, p, y)
+        if p[P_TD] != 0.0:
+            td_step(s, p, r)
+        else:
+            s[S_V1] = r
+            s[S_V2] = rdot
+        e1 = s[S_V1] - s[S_Z1]
+        e2 = s[S_V2] - s[S_Z2]
+        if p[P_LAW] == LAW_FHAN:
+            u0 = -fhan(e1, p[P_C] * e2, p[P_R], p[P_H1]) + rddot
+        else:
+            u0 = p[P_K1] * fal(e1, p[P_A1], p[P_DL]) + p[P_K2] * fal(e2, p[P_A2], p[P_DL]) + rddot
+        u = (u0 - s[S_Z3]) / b0
+    else:
+        if math.isfinite(ydot):
+            rate = ydot
+        else:
+            rate = (y - s[S_YPREV]) / p[P_H]
+        s[S_YPREV] = y
+        u0 = p[P_KP] * (r - y) + p[P_KD] * (rdot - rate) + rddot
+        u = u0 / b0
+    s[S_U0] = u0
+    u = _clip(u, p[P_UMIN], p[P_UMAX])
+    s[S_U] = u
+    return u
+
+
+# --- parameter construction (plain Python, run once) ---------------------------------------------
+
+
+def leso_gains(wo, h, discretization):
+    """Observer gains for bandwidth ``wo``: the ZOH current observer's Lc, or l = (3wo, 3wo^2, wo^3)."""
+    if discretization == "zoh":
+        beta = math.exp(-wo * h)
+        return (
+            1.0 - beta**3,
+            1.5 * (1.0 - beta) ** 2 * (1.0 + beta) / h,
+            (1.0 - beta) ** 3 / h**2,
+        )
+    return 3.0 * wo, 3.0 * wo**2, wo**3
+
+
+def han_eso_gains(h, convention="han"):
+    """Default NLESO gains from the step h.
+
+    ``"han"``: beta01 = 1/h, beta02 = 1/(1.6 h^1.5), beta03 = 1/(8.6 h^2.2) (Han's book).
+    ``"thesis"``: the thesis's eq. 25 premultiplied set B0i = h*beta0i = (1, 1/(2 h^0.5),
+    2/(25 h^1.2)), i.e. beta01 = 1/h, beta02 = 1/(2 h^1.5), beta03 = 2/(25 h^2.2).
+    """
+    if convention == "han":
+        return 1.0 / h, 1.0 / (1.6 * h**1.5), 1.0 / (8.6 * h**2.2)
+    if convention == "thesis":
+        return 1.0 / h, 1.0 / (2.0 * h**1.5), 2.0 / (25.0 * h**2.2)
+    raise ValueError(f"eso_gains: unknown convention {convention!r} (expected 'han' or 'thesis')")
+
+
+def new_params():
+    p = np.zeros(NP)
+    p[P_UMIN] = -math.inf
+    p[P_UMAX] = math.inf
+    p[P_B0] = 1.0
+    return p
+
+
+def new_state():
+    return np.zeros(NS)
+
+
+@jit
+def observer_update(s, p, y, u):
+    """Advance a standalone ESO (LADRC or HAN kind) with measurement y and applied input u.
+
+    Returns False (state untouched) for a non-finite y or u.
+    """
+    if not (math.isfinite(y) and math.isfinite(u)):
+        return False
+    if s[S_INIT] == 0.0:
+        channel_init(s, y, y, 0.0)
+    s[S_U] = u
+    if p[P_KIND] == KIND_HAN:
+        nleso_step(s, p, y)
+    else:
+        leso_step(s, p, y)
+    return True
+
+
+@jit
+def td_update(s, p, v):
+    """Advance a standalone TD; returns False (state untouched) for a non-finite v."""
+    if not math.isfinite(v):
+        return False
+    td_step(s, p, v)
+    return True

@@ -1,0 +1,146 @@
+"""Position controller: three channels (x, y, z NED) -> desired acceleration -> attitude + thrust.
+
+Each axis is a channel of the chosen kind acting on the double integrator ``p'' = a + d`` with
+``b0 = 1`` (the command is an acceleration in m/s^2, gravity included on z).  The geometric map of
+:mod:`mavadrc.control.geometry` turns the three commands into an attitude quaternion and a
+normalized thrust, with a tilt limit and altitude priority; each observer is then fed the
+acceleration the *limited* setpoint really commands.
+"""
+
+import math
+
+import numpy as np
+
+from . import geometry as G
+from . import kernels as K
+from ._jit import jit
+from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params
+
+AXES = ("x", "y", "z")
+
+
+@jit
+def position_update(S, P, M, pos, vel, rpos, rvel, racc, yaw, out):
+    """One step of the three position channels and the attitude map; False on non-finite input.
+
+    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters.  ``vel`` is
+    the measured velocity (used by PD channels; NaN entries make PD differentiate).  ``out``:
+    the layout of :func:`geometry.accel_to_attitude` followed by the three raw commands.
+    """
+    for i in range(3):
+        if not (math.isfinite(pos[i]) and math.isfinite(rpos[i]) and math.isfinite(rvel[i])
+                and math.isfinite(racc[i])):
+            return False
+    if not math.isfinite(yaw):
+        return False
+    a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0])
+    a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1])
+    a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2])
+    G.accel_to_attitude(a0, a1, a2, yaw, M, out)
+    for i in range(3):
+        S[i, K.S_U] = out[G.O_ACC + i]
+    out[G.NO] = a0
+    out[G.NO + 1] = a1
+    out[G.NO + 2] = a2
+    return True
+
+
+def _axis(value, i, name):
+    """A per-axis setting: a scalar for all axes, or a sequence of three (x, y, z)."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        if len(value) != 3:
+            raise ValueError(f"{name} must be a number or three numbers (x, y, z), got {value!r}")
+        return value[i]
+    return value
+
+
+def axis_params(kind, i, h, gains):
+    """Kernel parameters of position axis ``i`` from per-axis gain keywords."""
+    g = {k: _axis(v, i, k) for k, v in gains.items()}
+    if kind == "ladrc":
+        return ladrc_params(h=h, b0=g.pop("b0", 1.0), **g)
+    if kind == "adrc":
+        return han_params(h=h, b0=g.pop("b0", 1.0), **g)
+    if kind == "pd":
+        if "wc" in g:
+            wc = g.pop("wc")
+            g.setdefault("kp", wc * wc)
+            g.setdefault("kd", 2.0 * wc)
+        return pd_params(h=h, **g)
+    raise ValueError(f"controller kind must be 'adrc', 'ladrc' or 'pd' (got {kind!r})")
+
+
+class PositionController:
+    """Three position channels of one kind and the geometric attitude map.
+
+    ``PositionController(kind="ladrc", h=0.01, hover_thrust=0.5, wc=(2, 2, 3), wo=(10, 10, 15))``
+
+    Gain keywords are those of the channel kind (``wc, wo, b0`` for 'ladrc'; ``r0, r, c, h1, ...``
+    for 'adrc'; ``kp, kd`` or ``wc`` for 'pd'), each a scalar or an (x, y, z) triple.  Thrust is
+    normalised by ``hover_thrust`` or by ``mass`` and ``max_thrust`` (N).  ``tilt_max`` is in rad.
+    """
+
+    def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
+                 tilt_max=math.radians(35.0), thrust_min=0.05, thrust_max=1.0, g=G.GRAVITY,
+                 **gains):
+        self.kind = kind
+        self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
+        self._S = np.zeros((3, K.NS))
+        self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
+                                   tilt_max=tilt_max, thrust_min=thrust_min,
+                                   thrust_max=thrust_max, g=g)
+        self._out = np.zeros(G.NO + 3)
+        self._nan3 = np.full(3, math.nan)
+        self._zero3 = np.zeros(3)
+
+    def reset(self, pos=None):
+        """Start again, at ``pos`` now or from the next measurement."""
+        self._S[:] = 0.0
+        if pos is not None:
+            for i in range(3):
+                K.channel_init(self._S[i], float(pos[i]), 0.0, 0.0)
+
+    def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0):
+        """One step: returns (q [w, x, y, z], normalized thrust).
+
+        ``pos``/``vel``: measured NED position and velocity (``vel`` may be None for ADRC kinds;
+        PD then differentiates).  ``ref_*``: reference and its derivatives (None: zero).
+        """
+        pos = np.asarray(pos, dtype=np.float64)
+        vel = self._nan3 if vel is None else np.asarray(vel, dtype=np.float64)
+        rp = pos if ref_pos is None else np.asarray(ref_pos, dtype=np.float64)
+        rv = self._zero3 if ref_vel is None else np.asarray(ref_vel, dtype=np.float64)
+        ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
+        if not position_update(self._S, self._P, self._M, pos, vel, rp, rv, ra, float(yaw),
+                               self._out):
+            raise nonfinite_arrays(pos=pos, ref_pos=rp, ref_vel=rv, ref_acc=ra, yaw=yaw)
+        return self._out[G.O_Q:G.O_Q + 4].copy(), float(self._out[G.O_THRUST])
+
+    @property
+    def accel_command(self):
+        """The three channels' acceleration commands of the last step (before the map's limits)."""
+        return self._out[G.NO:G.NO + 3].copy()
+
+    @property
+    def accel_applied(self):
+        """The acceleration the limited setpoint commands (what the observers were fed)."""
+        return self._out[G.O_ACC:G.O_ACC + 3].copy()
+
+    @property
+    def z(self):
+        """(3, 3) observer estimates: row per axis, columns z1, z2, z3."""
+        return self._S[:, K.S_Z1:K.S_Z3 + 1].copy()
+
+    @property
+    def disturbance(self):
+        """Estimated total disturbance acceleration per axis (z3; zero for PD)."""
+        return self._S[:, K.S_Z3].copy()
+
+    @property
+    def td(self):
+        """(3, 2) TD outputs v1, v2 per axis (classical ADRC)."""
+        return self._S[:, K.S_V1:K.S_V2 + 1].copy()
+
+    @property
+    def params(self):
+        return self._P.copy(), self._M.copy()
