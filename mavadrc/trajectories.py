@@ -129,15 +129,10 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 def _tangent_yaw(vel: np.ndarray, acc: np.ndarray):
     """Heading of the horizontal velocity and its exact rate d/dt atan2(vy, vx).
 
-    Where the vehicle has no horizontal speed the heading is undefined; 0 with rate 0 is
-    returned there.
+    Only used by curves whose horizontal speed never vanishes (validated speed > 0).
     """
     vx, vy, ax, ay = vel[:, 0], vel[:, 1], acc[:, 0], acc[:, 1]
-    h2 = vx * vx + vy * vy
-    moving = h2 > 1e-12
-    yaw = np.where(moving, np.arctan2(vy, vx), 0.0)
-    rate = np.where(moving, (vx * ay - vy * ax) / np.where(moving, h2, 1.0), 0.0)
-    return yaw, rate
+    return np.arctan2(vy, vx), (vx * ay - vy * ax) / (vx * vx + vy * vy)
 
 
 def _min_jerk(s: np.ndarray):
@@ -165,7 +160,7 @@ class Trajectory:
     duration: float = math.inf
 
     def _eval(self, t: np.ndarray):
-        """Return pos (N,3), vel (N,3), acc (N,3), yaw (N,), yaw_rate (N,) for 0 <= t <= duration."""
+        """pos (N,3), vel (N,3), acc (N,3), yaw (N,), yaw_rate (N,) for 0 <= t <= duration."""
         raise NotImplementedError
 
     def sample_many(self, t):
@@ -325,11 +320,12 @@ class Spiral(Circle):
 
 
 class FigureEight(_Planar):
-    """Lemniscate of Gerono: north = cn + a sin(th), east = ce + (a/2) sin(2 th), th = 2 pi t / period.
+    """Lemniscate of Gerono: north = cn + a sin(th), east = ce + (a/2) sin(2 th).
 
-    Starts at the centre crossing heading north-east; spans +-a north and +-a/2 east. The
-    horizontal speed a w sqrt(cos^2 th + cos^2 2th) never vanishes, so 'tangent' yaw is smooth
-    everywhere; the peak speed is sqrt(2) a w at the crossing.
+    With th = w t, w = 2 pi / period, it starts at the centre crossing heading north-east and
+    spans +-a north and +-a/2 east. The horizontal speed a w sqrt(cos^2 th + cos^2 2th) never
+    vanishes, so 'tangent' yaw is smooth everywhere; the peak speed is sqrt(2) a w at the
+    crossing.
     """
 
     def __init__(
@@ -562,7 +558,8 @@ class Sequence(Trajectory):
 
     def _eval(self, t):
         n = t.shape[0]
-        idx = np.clip(np.searchsorted(self.start_times, t, side="right") - 1, 0, len(self.parts) - 1)
+        last = len(self.parts) - 1
+        idx = np.clip(np.searchsorted(self.start_times, t, side="right") - 1, 0, last)
         pos, vel, acc = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         yaw, yaw_rate = np.empty(n), np.empty(n)
         for k in np.unique(idx):

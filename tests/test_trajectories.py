@@ -1,4 +1,4 @@
-"""Reference trajectories: exact derivatives, geometry, the thesis's formulas, timing, validation."""
+"""Reference trajectories: exact derivatives, geometry, thesis formulas, timing, validation."""
 
 import math
 
@@ -42,6 +42,7 @@ CASES = {
     ),
     "circle_tangent_ccw": lambda: Circle(10.0, 10.0, 1.0, yaw="tangent"),
     "circle_tangent_cw": lambda: Circle(2.0, 5.0, 3.0, yaw="tangent", clockwise=True, phase=-2.0),
+    "circle_laps_tangent": lambda: Circle(3.0, 2.0, 1.0, yaw="tangent", laps=1.5),
     "thesis_spiral": lambda: by_name("thesis_spiral"),
     "thesis_spiral_pd": lambda: by_name("thesis_spiral_pd"),
     "spiral_reverse_tangent": lambda: Spiral(omega=-0.3, yaw="tangent"),
@@ -222,6 +223,17 @@ def test_waypoints_pass_through_each_point_at_rest(dwell):
         assert not np.any(held[1])
 
 
+def test_waypoints_are_hit_bit_exactly():
+    """Arrival positions equal the given points exactly, not up to rounding (Land ends at z = 0)."""
+    pts = np.random.default_rng(7).uniform(-50.0, 50.0, size=(40, 3))
+    wp = Waypoints(pts, speed=4.0, dwell=0.5)
+    np.testing.assert_array_equal(wp.sample_many(wp.arrival_times)[0], pts)
+    np.testing.assert_array_equal(wp.sample(wp.duration + 1.0).pos, pts[-1])
+    for a, b in zip(pts[:-1], pts[1:]):  # the end of a leg, where s = 1
+        leg = Waypoints([a, b], speed=4.0)
+        np.testing.assert_array_equal(leg.sample(leg.duration).pos, b)
+
+
 def test_waypoints_straight_segments_and_exact_peak_speed():
     speed = 2.5
     wp = Waypoints(POINTS, speed=speed)
@@ -284,6 +296,26 @@ def test_waypoint_tangent_yaw_faces_each_leg_and_turns_in_the_dwell():
     assert mid_turn.yaw == pytest.approx(math.pi / 4, abs=1e-12)
     assert mid_turn.yaw_rate == pytest.approx(1.875 * (math.pi / 2) / 1.0, rel=1e-12)
     np.testing.assert_allclose(mid_turn.pos, pts[2], atol=1e-12)
+
+
+def test_waypoint_tangent_yaw_with_a_vertical_first_leg_faces_the_first_horizontal_leg():
+    wp = Waypoints([[0, 0, 0], [0, 0, -3], [0, 4, -3]], speed=1.0, yaw="tangent")
+    _, _, _, yaw, rate = wp.sample_many(np.linspace(0.0, wp.duration, 50))
+    np.testing.assert_allclose(yaw, math.pi / 2, atol=1e-15)
+    np.testing.assert_array_equal(rate, 0.0)
+    straight_up = Waypoints([[1, 1, 0], [1, 1, -3]], speed=1.0, yaw="tangent")
+    assert straight_up.sample(1.0).yaw == 0.0  # no horizontal leg at all: north
+
+
+def test_waypoint_tangent_turn_across_south_takes_the_short_way():
+    a, b = math.radians(170), math.radians(-170)
+    p1 = 5.0 * np.array([math.cos(a), math.sin(a), 0.0])
+    p2 = p1 + 5.0 * np.array([math.cos(b), math.sin(b), 0.0])
+    wp = Waypoints([[0, 0, 0], p1, p2], speed=1.0, yaw="tangent", dwell=2.0)
+    t = np.linspace(wp.arrival_times[1], wp.arrival_times[1] + 2.0, 51)[1:-1]
+    _, _, _, yaw, rate = wp.sample_many(t)
+    assert np.all(rate > 0.0)  # 170 -> 190 deg, not 340 deg back through north
+    assert np.all(np.abs(yaw) >= a - 1e-12)
 
 
 def test_takeoff_and_land_are_vertical_and_reach_their_ends():
