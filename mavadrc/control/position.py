@@ -46,7 +46,12 @@ def position_update(S, P, M, pos, vel, rpos, rvel, racc, yaw, out):
 
 
 def _axis(value, i, name):
-    """A per-axis setting: a scalar for all axes, or a sequence of three (x, y, z)."""
+    """A per-axis setting: a scalar for all axes, or a sequence of three (x, y, z).
+
+    ``beta`` (the NLESO gains, already a triple) is per axis only when given as three triples.
+    """
+    if name == "beta" and value is not None and not isinstance(value[0], (list, tuple, np.ndarray)):
+        return value  # one (beta01, beta02, beta03) set for every axis
     if isinstance(value, (list, tuple, np.ndarray)):
         if len(value) != 3:
             raise ValueError(f"{name} must be a number or three numbers (x, y, z), got {value!r}")

@@ -1,0 +1,31 @@
+"""The `mavadrc` command."""
+
+import argparse
+import sys
+
+
+def _bench(args):
+    from . import bench
+
+    return bench.main(as_json=args.json)
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="mavadrc",
+        description="Disturbance-rejecting offboard control (ADRC, LADRC, PD) for multirotors.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("bench", help="print per-call step times of the controllers and the vehicle")
+    b.add_argument("--json", action="store_true",
+                   help="print one JSON object mapping figure names (units in the name) to numbers")
+    b.set_defaults(func=_bench)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
