@@ -1,0 +1,288 @@
+"""YAML configuration loading that remembers where every value came from.
+
+Configuration is validated at the edge: a file is read into plain dicts and lists that also carry
+the line of each key, and a :class:`Section` reads typed fields out of a mapping, so that a bad
+value fails with the file, the line and the field, e.g.::
+
+    configs/vehicles/bad.yaml:3: mass: must be > 0 (got -1.0)
+
+:class:`ConfigError` is the one exception type for bad configuration across the project.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Any, Iterable, NoReturn
+
+import numpy as np
+import yaml
+
+__all__ = ["ConfigError", "YamlMap", "YamlList", "load_yaml", "Section", "REQUIRED"]
+
+
+class ConfigError(ValueError):
+    """A configuration file or mapping is malformed or physically impossible."""
+
+
+class YamlMap(dict):
+    """A dict loaded from YAML; ``lines[key]`` is the 1-based line of each key."""
+
+    def __init__(self, *args, line: int | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.line = line
+        self.lines: dict[Any, int] = {}
+
+
+class YamlList(list):
+    """A list loaded from YAML; ``lines[i]`` is the 1-based line of item i."""
+
+    def __init__(self, *args, line: int | None = None):
+        super().__init__(*args)
+        self.line = line
+        self.lines: list[int] = []
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads ``1e-5`` (no dot) as a float, as YAML 1.2 and humans do."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _build(node: yaml.Node, constructor: _Loader, source: str) -> Any:
+    line = node.start_mark.line + 1
+    if isinstance(node, yaml.MappingNode):
+        out = YamlMap(line=line)
+        for key_node, value_node in node.value:
+            key = constructor.construct_object(key_node, deep=True)
+            key_line = key_node.start_mark.line + 1
+            if not isinstance(key, (str, int, float, bool)) or key is None:
+                raise ConfigError(f"{source}:{key_line}: keys must be scalars")
+            if key in out:
+                raise ConfigError(f"{source}:{key_line}: {key}: duplicate key "
+                                  f"(first on line {out.lines[key]})")
+            out[key] = _build(value_node, constructor, source)
+            out.lines[key] = key_line
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        out_list = YamlList(line=line)
+        for item in node.value:
+            out_list.append(_build(item, constructor, source))
+            out_list.lines.append(item.start_mark.line + 1)
+        return out_list
+    return constructor.construct_object(node, deep=True)
+
+
+def load_yaml(path: str | Path, *, text: str | None = None) -> Any:
+    """Read a YAML file (or ``text`` attributed to ``path``) into YamlMap / YamlList / scalars.
+
+    An empty document loads as an empty YamlMap. Syntax errors become ConfigError with the line.
+    """
+    source = str(path)
+    if text is None:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from exc
+    constructor = _Loader("")
+    try:
+        node = yaml.compose(text, Loader=_Loader)
+        if node is None:
+            return YamlMap(line=1)
+        return _build(node, constructor, source)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"{source}:{mark.line + 1}" if mark is not None else source
+        raise ConfigError(f"{where}: invalid YAML: {exc.problem or exc.context}") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: invalid YAML: {exc}") from exc
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+class Section:
+    """Typed, line-aware reader of one mapping of a configuration.
+
+    Every getter marks its key as used; :meth:`finish` rejects keys nobody asked for, so a
+    misspelt option fails instead of being silently ignored. Errors read
+    ``SOURCE:LINE: PATH.FIELD: reason``. Works on plain dicts too (then without line numbers).
+    """
+
+    def __init__(self, data: Any, source: str = "<mapping>", path: str = "",
+                 line: int | None = None):
+        self.source = str(source)
+        self.path = path
+        self._line = getattr(data, "line", None) or line
+        if not isinstance(data, dict):
+            self.error(None, f"must be a mapping (got {type(data).__name__})")
+        self.data = data
+        self._used: set = set()
+
+    # -- reporting ---------------------------------------------------------------------------
+    def line(self, key: Any = None) -> int | None:
+        lines = getattr(self.data, "lines", None) if hasattr(self, "data") else None
+        if key is not None and lines and key in lines:
+            return lines[key]
+        return self._line
+
+    def field_name(self, key: Any) -> str:
+        if key is None:
+            return self.path or "(top level)"
+        return f"{self.path}.{key}" if self.path else str(key)
+
+    def error(self, key: Any, reason: str) -> NoReturn:
+        """Raise a ConfigError about ``key`` (None: the mapping itself)."""
+        line = self.line(key)
+        where = f"{self.source}:{line}" if line is not None else self.source
+        raise ConfigError(f"{where}: {self.field_name(key)}: {reason}")
+
+    # -- access ------------------------------------------------------------------------------
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = REQUIRED) -> Any:
+        self._used.add(key)
+        if key not in self.data:
+            if default is REQUIRED:
+                where = f"{self.source}:{self._line}" if self._line is not None else self.source
+                raise ConfigError(f"{where}: {self.field_name(key)}: required field missing")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = REQUIRED, *, gt: float | None = None,
+               ge: float | None = None, lt: float | None = None,
+               le: float | None = None) -> float:
+        """A finite real number, optionally bounded."""
+        value = self.raw(key, default)
+        if value is default and key not in self.data:
+            return value
+        if not _is_number(value):
+            self.error(key, f"must be a number (got {value!r})")
+        value = float(value)
+        self._check_bounds(key, value, gt, ge, lt, le)
+        return value
+
+    def _check_bounds(self, key: str, value: float, gt, ge, lt, le, what: str = "") -> None:
+        if not math.isfinite(value):
+            self.error(key, f"{what}must be finite (got {value})")
+        if gt is not None and not value > gt:
+            self.error(key, f"{what}must be > {gt:g} (got {value!r})")
+        if ge is not None and not value >= ge:
+            self.error(key, f"{what}must be >= {ge:g} (got {value!r})")
+        if lt is not None and not value < lt:
+            self.error(key, f"{what}must be < {lt:g} (got {value!r})")
+        if le is not None and not value <= le:
+            self.error(key, f"{what}must be <= {le:g} (got {value!r})")
+
+    def vector(self, key: str, n: int, default: Any = REQUIRED, *, scalar_ok: bool = False,
+               gt: float | None = None, ge: float | None = None) -> np.ndarray:
+        """A list of ``n`` numbers (or, with ``scalar_ok``, one number used for all n)."""
+        value = self.raw(key, default)
+        if value is default and key not in self.data:
+            return value if value is None else np.array(value, dtype=float)
+        if scalar_ok and _is_number(value):
+            value = [value] * n
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            kind = f"a list of {n} numbers" + (" or one number" if scalar_ok else "")
+            self.error(key, f"must be {kind} (got {value!r})")
+        for i, item in enumerate(value):
+            if not _is_number(item):
+                self.error(key, f"item {i} must be a number (got {item!r})")
+            self._check_bounds(key, float(item), gt, ge, None, None, what=f"item {i} ")
+        return np.array(value, dtype=float)
+
+    def string(self, key: str, default: Any = REQUIRED,
+               choices: Iterable[str] | None = None) -> str:
+        value = self.raw(key, default)
+        if value is default and key not in self.data:
+            return value
+        if not isinstance(value, str):
+            self.error(key, f"must be a string (got {value!r})")
+        if choices is not None:
+            choices = list(choices)
+            if value not in choices:
+                self.error(key, f"must be one of {', '.join(choices)} (got {value!r})")
+        return value
+
+    def boolean(self, key: str, default: Any = REQUIRED) -> bool:
+        value = self.raw(key, default)
+        if value is default and key not in self.data:
+            return value
+        if not isinstance(value, bool):
+            self.error(key, f"must be true or false (got {value!r})")
+        return value
+
+    def section(self, key: str) -> "Section":
+        """The nested mapping under ``key`` as a Section."""
+        value = self.raw(key)
+        if not isinstance(value, dict):
+            self.error(key, f"must be a mapping (got {type(value).__name__})")
+        return Section(value, self.source, self.field_name(key), line=self.line(key))
+
+    def sections(self, key: str, default: Any = REQUIRED) -> list["Section"]:
+        """The list of mappings under ``key``, each as a Section named ``key[i]``."""
+        value = self.raw(key, default)
+        if value is default and key not in self.data:
+            return value
+        if not isinstance(value, list):
+            self.error(key, f"must be a list (got {type(value).__name__})")
+        lines = getattr(value, "lines", None)
+        out = []
+        for i, item in enumerate(value):
+            line = lines[i] if lines else self.line(key)
+            name = f"{self.field_name(key)}[{i}]"
+            if not isinstance(item, dict):
+                where = f"{self.source}:{line}" if line is not None else self.source
+                raise ConfigError(f"{where}: {name}: must be a mapping (got {item!r})")
+            out.append(Section(item, self.source, name, line=line))
+        return out
+
+    def check(self, key: str, ok: bool, reason: str) -> None:
+        """Fail with ``reason`` about ``key`` unless ``ok``."""
+        if not ok:
+            self.error(key, reason)
+
+    def finish(self) -> None:
+        """Reject keys that no getter asked for."""
+        unknown = [k for k in self.data if k not in self._used]
+        if unknown:
+            key = unknown[0]
+            known = sorted(str(k) for k in self._used)
+            self.error(key, f"unknown key (known keys: {', '.join(known)})")
+
+
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def config_path(name_or_path: str | Path, folder: str) -> Path:
+    """Resolve a bare name (``crazyflie``) to ``configs/FOLDER/NAME.yaml``; paths pass through.
+
+    A value is a path if it is a Path, contains a path separator or ends in .yaml / .yml.
+    """
+    if isinstance(name_or_path, Path):
+        return name_or_path
+    text = str(name_or_path)
+    if "/" in text or "\\" in text or text.endswith((".yaml", ".yml")):
+        return Path(text)
+    path = CONFIG_DIR / folder / f"{text}.yaml"
+    if not path.exists():
+        shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
+        raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)})")
+    return path
