@@ -9,6 +9,8 @@ Every model follows one contract, called once per physics step with the real ste
 the air-relative velocity, as rotorpy, RotorS and ArduPilot SITL do. ``f_ext`` (world, N) and
 ``tau_ext`` (body, N m) are direct disturbances; only :class:`ThesisWind` produces them. Outputs
 are evaluated at the start of the step and held over it. Parts add up in :class:`CompositeWind`.
+Velocity-field models implement ``velocity(t, dt, position, velocity)`` (the same call without
+the two zero vectors).
 Random parts draw from a numpy Generator seeded by ``reset(seed)``: same seed, same series.
 
 Directions follow ArduPilot's SIM_WIND_DIR: ``direction_from_deg`` is where the wind blows FROM,
@@ -52,7 +54,13 @@ def _altitude(position) -> float:
 
 
 class Wind:
-    """Base class: no wind. Subclasses override :meth:`step` (and :meth:`mean`, :meth:`reset`)."""
+    """Base class: no wind.
+
+    A velocity-field model overrides :meth:`velocity`; a model with direct forces overrides
+    :meth:`step` and sets ``has_forces``. Random or stateful models override :meth:`reset`.
+    """
+
+    has_forces = False
 
     def reset(self, seed: int | None = 0) -> None:
         """Restart the model (time-dependent state and random stream) from ``seed``."""
@@ -61,9 +69,13 @@ class Wind:
         """The mean (non-turbulent) air velocity at ``position``, NED m/s."""
         return np.zeros(3)
 
+    def velocity(self, t: float, dt: float, position, velocity) -> np.ndarray:
+        """The air velocity (NED m/s) held over [t, t + dt]; advances any internal state."""
+        return np.zeros(3)
+
     def step(self, t: float, dt: float, position, velocity):
         """(v_wind NED m/s, f_ext world N, tau_ext body N m) held over [t, t + dt]."""
-        return np.zeros(3), np.zeros(3), np.zeros(3)
+        return self.velocity(t, dt, position, velocity), np.zeros(3), np.zeros(3)
 
 
 class ConstantWind(Wind):
@@ -103,12 +115,11 @@ class ConstantWind(Wind):
         return 1.0
 
     def mean(self, position) -> np.ndarray:
-        v = self._horizontal * self.scale(_altitude(position))
-        v[2] = -self.vertical
-        return v
+        k = self.scale(_altitude(position))
+        return np.array([self._horizontal[0] * k, self._horizontal[1] * k, -self.vertical])
 
-    def step(self, t, dt, position, velocity):
-        return self.mean(position), np.zeros(3), np.zeros(3)
+    def velocity(self, t, dt, position, velocity):
+        return self.mean(position)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,11 +192,12 @@ def _dryden2_coeffs(eps, out):
 
 
 @njit(cache=True, error_model="numpy")
-def _dryden_run(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, axis_u, axis_v, out):
+def _dryden_run(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy, out):
     """Advance the normalised Dryden states len(out) steps; write NED turbulence rows to out.
 
     state = [u, v1, v2, w1, w2] (stationary covariance: u 1, the pairs 1/4 I), eta (n, 5) unit
-    normals, eps_* = V dt / L_* per step, axis_u / axis_v horizontal unit vectors (w is down).
+    normals, eps_* = V dt / L_* per step, (ux, uy) the horizontal unit vector of u; v is 90 deg
+    to its right, w is down.
     """
     a = math.exp(-eps_u)
     b = math.sqrt(-math.expm1(-2.0 * eps_u))
@@ -206,10 +218,9 @@ def _dryden_run(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, axis_u, ax
         state[4] = w2
         u = sig_u * state[0]
         v = sig_v * (v1 + s3 * v2)
-        w = sig_w * (w1 + s3 * w2)
-        out[k, 0] = u * axis_u[0] + v * axis_v[0]
-        out[k, 1] = u * axis_u[1] + v * axis_v[1]
-        out[k, 2] = w
+        out[k, 0] = u * ux - v * uy
+        out[k, 1] = u * uy + v * ux
+        out[k, 2] = sig_w * (w1 + s3 * w2)
 
 
 class DrydenTurbulence(Wind):
@@ -223,8 +234,9 @@ class DrydenTurbulence(Wind):
 
     Components: u along the horizontal mean wind, v crosswind (to its right), w down; with no mean
     wind, u is north. Intensity: ``w20`` (m/s, wind at 20 ft) or ``intensity`` ('light',
-    'moderate', 'severe': 15 / 30 / 45 kt); with neither, W20 is the mean wind at 20 ft.
-    ``mean_wind`` is the model giving the mean wind (e.g. a ConstantWind), or None.
+    'moderate', 'severe': 15 / 30 / 45 kt); with neither, W20 is the horizontal mean wind 20 ft
+    above the origin (a property of the site, read once). ``mean_wind`` is the model giving the
+    mean wind (e.g. a ConstantWind), or None.
     """
 
     def __init__(self, w20: float | None = None, intensity: str | None = None,
@@ -243,6 +255,10 @@ class DrydenTurbulence(Wind):
             raise ValueError("v_min must be > 0")
         self.w20 = None if w20 is None else float(w20)
         self.mean_wind = mean_wind
+        if w20 is None:
+            at20 = mean_wind.mean(np.array([0.0, 0.0, -20.0 * FOOT]))
+            w20 = math.hypot(at20[0], at20[1])
+        self._w20 = float(w20)
         self.v_min = float(v_min)
         self.state = np.zeros(5)
         self.reset(seed)
@@ -255,23 +271,22 @@ class DrydenTurbulence(Wind):
         return np.zeros(3)
 
     def _setup(self, dt, position, velocity):
-        mean = self.mean_wind.mean(position) if self.mean_wind is not None else np.zeros(3)
-        if self.w20 is not None:
-            w20 = self.w20
+        if self.mean_wind is not None:
+            mx, my, mz = self.mean_wind.mean(position).tolist()
         else:
-            at20 = np.array([position[0], position[1], -20.0 * FOOT])
-            w20 = float(np.hypot(*self.mean_wind.mean(at20)[:2]))
-        sig_u, sig_w, l_u, l_w = dryden_scales(_altitude(position), w20)
-        rel = mean - np.asarray(velocity, dtype=float)
-        speed = max(math.sqrt(float(rel @ rel)), self.v_min)
-        horizontal = math.hypot(mean[0], mean[1])
+            mx = my = mz = 0.0
+        sig_u, sig_w, l_u, l_w = dryden_scales(_altitude(position), self._w20)
+        vx, vy, vz = velocity.tolist() if isinstance(velocity, np.ndarray) else velocity
+        rx = mx - vx
+        ry = my - vy
+        rz = mz - vz
+        travel = max(math.sqrt(rx * rx + ry * ry + rz * rz), self.v_min) * dt
+        horizontal = math.hypot(mx, my)
         if horizontal > 1e-9:
-            axis_u = np.array([mean[0] / horizontal, mean[1] / horizontal, 0.0])
+            ux, uy = mx / horizontal, my / horizontal
         else:
-            axis_u = np.array([1.0, 0.0, 0.0])
-        axis_v = np.array([-axis_u[1], axis_u[0], 0.0])
-        return (speed * dt / l_u, speed * dt / l_u, speed * dt / l_w,
-                sig_u, sig_u, sig_w, axis_u, axis_v)
+            ux, uy = 1.0, 0.0
+        return travel / l_u, travel / l_u, travel / l_w, sig_u, sig_u, sig_w, ux, uy
 
     def sample(self, n: int, dt: float, position, velocity) -> np.ndarray:
         """Advance n steps of dt at a held position and velocity; (n, 3) NED turbulence."""
@@ -284,11 +299,11 @@ class DrydenTurbulence(Wind):
             _dryden_run(self.state, eta, *args, out[start:stop])
         return out
 
-    def step(self, t, dt, position, velocity):
+    def velocity(self, t, dt, position, velocity):
         out = np.empty((1, 3))
         _dryden_run(self.state, self._rng.standard_normal((1, 5)),
                     *self._setup(dt, position, velocity), out)
-        return out[0], np.zeros(3), np.zeros(3)
+        return out[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -323,8 +338,8 @@ class OneMinusCosineGust(Wind):
             return 0.5 * (1.0 + math.cos(math.pi * s / self.t_rise))
         return 0.0
 
-    def step(self, t, dt, position, velocity):
-        return self.amplitude * self.factor(t), np.zeros(3), np.zeros(3)
+    def velocity(self, t, dt, position, velocity):
+        return self.amplitude * self.factor(t)
 
 
 class SinusoidWind(Wind):
@@ -337,9 +352,8 @@ class SinusoidWind(Wind):
         self.freq = float(freq)
         self.phase = float(phase)
 
-    def step(self, t, dt, position, velocity):
-        return (self.amplitude * math.sin(2.0 * math.pi * self.freq * t + self.phase),
-                np.zeros(3), np.zeros(3))
+    def velocity(self, t, dt, position, velocity):
+        return self.amplitude * math.sin(2.0 * math.pi * self.freq * t + self.phase)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -359,6 +373,8 @@ class ThesisWind(Wind):
     30 g vehicle for a 1 m/s wind, and k_drag = rho/2 (as eq. 12's text defines it) gives a yaw
     torque of 2.59 N m. docs/vehicles_and_wind.md explains why this is not a wind model.
     """
+
+    has_forces = True
 
     def __init__(self, rho: float, area: float, v_p: float, v_w: float, k_f_rpm2: float,
                  rotor_rpm: float | Sequence[float], arm_length: float, k_drag: float):
@@ -410,15 +426,28 @@ class CompositeWind(Wind):
             total += part.mean(position)
         return total
 
+    @property
+    def has_forces(self) -> bool:
+        return any(part.has_forces for part in self.parts)
+
+    def velocity(self, t, dt, position, velocity):
+        v = np.zeros(3)
+        for part in self.parts:
+            v += part.velocity(t, dt, position, velocity)
+        return v
+
     def step(self, t, dt, position, velocity):
         v = np.zeros(3)
         f = np.zeros(3)
         tau = np.zeros(3)
         for part in self.parts:
-            pv, pf, pt = part.step(t, dt, position, velocity)
+            if part.has_forces:
+                pv, pf, pt = part.step(t, dt, position, velocity)
+                f += pf
+                tau += pt
+            else:
+                pv = part.velocity(t, dt, position, velocity)
             v += pv
-            f += pf
-            tau += pt
         return v, f, tau
 
 
