@@ -26,7 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 from numba import njit
 
-from sim.yamlio import ConfigError, Section, config_path, load_yaml
+from sim.yamlio import Section, config_path, load_yaml
 
 __all__ = [
     "Wind", "ConstantWind", "DrydenTurbulence", "OneMinusCosineGust", "SinusoidWind",

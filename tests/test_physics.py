@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from sim import physics as ph
-from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_KF, P_KM, P_ROTOR_DRAG,
-                        P_ROTOR_INERTIA, load_vehicle)
+from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_KF, P_KM, P_ROTOR_DIR,
+                        P_ROTOR_DRAG, P_ROTOR_INERTIA, load_vehicle)
 
 Z3 = np.zeros(3)
 DT = 1e-3
@@ -35,7 +35,7 @@ def no_drag(P):
 def angular_momentum_world(x, P):
     """R (J w + h_r e3): body plus rotor angular momentum, in NED."""
     J = P[P_IXX:P_IXX + 3]
-    dirs = P[30:34]
+    dirs = P[P_ROTOR_DIR:P_ROTOR_DIR + 4]
     h = J * x[ph.IX_W:ph.IX_W + 3]
     h[2] -= P[P_ROTOR_INERTIA] * float(dirs @ x[ph.IX_ROT:ph.IX_ROT + 4])
     return ph.rotation_matrix(x[ph.IX_Q:ph.IX_Q + 4]) @ h
@@ -106,7 +106,8 @@ def test_rotor_gyroscopic_and_reaction_torques_conserve_total_momentum(cf):
     ph.step_n(x, np.array([1000.0, 2000.0, 1000.0, 2000.0]), P, Z3, hover, Z3, DT, 300)
     # rotors 2 and 4 (counter-clockwise seen from above) sped up: the body reacts clockwise,
     # nose right (r > 0), with Izz r + (h_r - h_r0) = 0
-    dh_r = -P[P_ROTOR_INERTIA] * float(P[30:34] @ (x[ph.IX_ROT:] - 1000.0))
+    dirs = P[P_ROTOR_DIR:P_ROTOR_DIR + 4]
+    dh_r = -P[P_ROTOR_INERTIA] * float(dirs @ (x[ph.IX_ROT:] - 1000.0))
     assert x[12] > 0.1
     assert P[P_IXX + 2] * x[12] + dh_r == pytest.approx(0.0, abs=1e-15)
 
@@ -289,15 +290,17 @@ def test_kernels_run_without_jit_and_agree():
     X, CMD, P, VW, FE, TE = _batch_case()
     expect = X.copy()
     ph.step_batch(expect, CMD, P, VW, FE, TE, DT, n=20)
+    inputs = [a.tolist() for a in (X, CMD, P, VW, FE, TE)]
     script = (
-        "import json, numpy as np\n"
+        "import json, sys, numpy as np\n"
         "from sim import physics as ph\n"
-        f"X = np.array({X.tolist()!r}); args = [np.array(a) for a in {[CMD.tolist(), P.tolist(), VW.tolist(), FE.tolist(), TE.tolist()]!r}]\n"
+        "X, *args = [np.array(a) for a in json.loads(sys.stdin.read())]\n"
         "ph.step_batch(X, *args, 1e-3, n=20)\n"
         "print(json.dumps(X.tolist()))\n"
     )
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
-                         text=True, timeout=120, cwd=Path(__file__).resolve().parents[1])
+                         input=json.dumps(inputs), text=True, timeout=120,
+                         cwd=Path(__file__).resolve().parents[1])
     assert out.returncode == 0, out.stderr
     assert np.allclose(np.array(json.loads(out.stdout)), expect, rtol=1e-11, atol=1e-11)

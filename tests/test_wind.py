@@ -11,9 +11,9 @@ from scipy.signal import welch
 
 from sim import physics as ph
 from sim.params import load_vehicle
-from sim.wind import (DRYDEN_W20, _dryden2_coeffs, KNOT, CompositeWind, ConstantWind, DrydenTurbulence,
-                      OneMinusCosineGust, SinusoidWind, ThesisWind, dryden_scales, load_wind,
-                      wind_vector)
+from sim.wind import (DRYDEN_W20, KNOT, CompositeWind, ConstantWind, DrydenTurbulence,
+                      OneMinusCosineGust, SinusoidWind, ThesisWind, _dryden2_coeffs,
+                      dryden_scales, load_wind, wind_vector)
 from sim.yamlio import ConfigError
 
 Z3 = np.zeros(3)
