@@ -1,0 +1,437 @@
+"""The bundled vehicle in process: physics, wind, sensors and the autopilot's firmware loops.
+
+:class:`SimVehicle` is the API the tests, the MAVLink server and batch experiments use::
+
+    v = SimVehicle("x500", wind="gusty", seed=3)
+    v.arm()
+    v.takeoff(2.0)
+    v.step(5.0)                 # advance 5 s of simulated time
+    r = v.reported()            # what the sensors report: position, velocity, attitude, rates
+
+Every physics step (``physics_dt``, 1 kHz by default) the wind is sampled, the firmware's inner
+loop (attitude control + mixer, :mod:`sim.firmware.attitude`) runs (every step, or every k-th with
+``attitude_rate_hz``) and the rigid body advances one RK4 step.  The position loop, the flight
+modes and the land detector run at ``position_rate_hz``.  Without wind and sensor models the
+steps between two position-loop ticks run in one compiled call.  The same seed gives the same
+flight, however the time is cut into ``step`` calls.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from mavadrc.control import geometry as G
+from mavadrc.control._jit import jit
+
+from . import physics as phys
+from .firmware import attitude as A
+from .firmware import position as PL
+from .firmware.mixer import Mixer
+from .params import VehicleParams, load_vehicle
+from .sensors import Sensors
+from .wind import Wind, load_wind
+
+MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
+
+# SET_ATTITUDE_TARGET type_mask bits
+IGNORE_ROLL_RATE = 1
+IGNORE_PITCH_RATE = 2
+IGNORE_YAW_RATE = 4
+IGNORE_THRUST = 64
+IGNORE_ATTITUDE = 128
+
+
+class CommandRejected(RuntimeError):
+    """The vehicle refuses a command in its current state (MAVLink: MAV_RESULT_DENIED)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Reported:
+    """The vehicle's state as its sensors report it (NED, body FRD, SI units, radians)."""
+
+    time: float
+    position: np.ndarray
+    velocity: np.ndarray
+    quaternion: np.ndarray
+    euler: np.ndarray
+    rates: np.ndarray
+
+
+@jit
+def advance(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, v_wind, f_ext, tau_ext, dt, n, tick,
+            att_div, pos_div, pos_dt):
+    """n physics steps of one vehicle with its firmware inner loop and land detector.
+
+    ``xm`` is what the firmware measures (x itself for truth); ``wk`` the firmware's scratch;
+    inputs held over the n steps.
+    """
+    for k in range(n):
+        t = tick + k
+        if t % pos_div == 0:
+            PL.land_detect(fs, fp, sp[A.SP_THRUST], xm[3:6], pos_dt)
+        if t % att_div == 0:
+            A.inner_step(fs, fp, S, P, W, mx, xm, sp, omega, wk)
+        phys.step(x, omega, pv, v_wind, f_ext, tau_ext, dt)
+
+
+def child_seeds(seed, n=2):
+    """Independent integer seeds for the random parts of one vehicle (wind, sensors)."""
+    ss = np.random.SeedSequence(seed)
+    return [int(c.generate_state(1)[0]) for c in ss.spawn(n)]
+
+
+def resolve_vehicle(vehicle):
+    if isinstance(vehicle, VehicleParams):
+        return vehicle
+    return load_vehicle(vehicle)
+
+
+def resolve_wind(wind, seed):
+    """A Wind (reset with ``seed``) from None, a config name/path, a mapping or a Wind."""
+    if wind is None:
+        return None
+    if isinstance(wind, Wind):
+        wind.reset(seed)
+        return wind
+    return load_wind(wind, seed)
+
+
+def divider(rate_hz, physics_dt, name):
+    """Physics steps per tick of a loop running at ``rate_hz`` (None: every step)."""
+    if rate_hz is None:
+        return 1
+    k = round(1.0 / (float(rate_hz) * physics_dt))
+    if k < 1 or abs(k * physics_dt * rate_hz - 1.0) > 1e-6:
+        raise ValueError(f"{name}={rate_hz!r} Hz must divide the physics rate "
+                         f"{1.0 / physics_dt:g} Hz")
+    return k
+
+
+class Firmware:
+    """The firmware's parameter and state arrays for one vehicle (shared by the batch form)."""
+
+    def __init__(self, vp, *, attitude_controller, physics_dt, attitude_rate_hz,
+                 position_rate_hz, max_thrust, hover_thrust, airmode, attitude_gains,
+                 land_thrust=0.6, land_vz=0.25, land_vxy=1.0, land_time=0.5):
+        self.att_div = divider(attitude_rate_hz, physics_dt, "attitude_rate_hz")
+        self.pos_div = divider(position_rate_hz, physics_dt, "position_rate_hz")
+        if max_thrust is not None and hover_thrust is not None:
+            raise ValueError("give max_thrust or hover_thrust, not both")
+        if hover_thrust is not None:
+            if not 0.0 < hover_thrust < 1.0:
+                raise ValueError(f"hover_thrust must be in (0, 1) (got {hover_thrust!r})")
+            scale = vp.weight / float(hover_thrust)
+        elif max_thrust is not None:
+            scale = float(max_thrust)
+            if not (math.isfinite(scale) and scale > vp.weight):
+                raise ValueError(f"max_thrust must exceed the weight {vp.weight:.4g} N "
+                                 f"(got {max_thrust!r})")
+        else:
+            scale = vp.max_thrust
+        self.thrust_scale = scale
+        self.hover_thrust = vp.weight / scale
+        self.mixer = Mixer(vp, airmode=airmode)
+        self.fp, self.P = A.firmware_params(
+            vp, attitude_controller, h=physics_dt * self.att_div, thrust_scale=scale,
+            mixer=self.mixer, **dict(attitude_gains or {}))
+        ld = self.fp[A.FP_LD:A.FP_LD + PL.NLD]
+        ld[PL.LD_THRUST] = land_thrust * self.hover_thrust
+        ld[PL.LD_VZ] = land_vz
+        ld[PL.LD_VXY] = land_vxy
+        ld[PL.LD_TIME] = land_time
+        self.mx = self.mixer.params
+        self.pos_dt = physics_dt * self.pos_div
+
+
+class SimVehicle:
+    """A simulated multirotor with a PX4-like autopilot, stepped in process.
+
+    ``vehicle``: a name in configs/vehicles, a YAML path or a VehicleParams.  ``wind``: None, a
+    name in configs/wind, a path, a mapping or a :class:`sim.wind.Wind`.  ``sensors``: None
+    (truth), a :class:`sim.sensors.Sensors` or its keyword mapping.  ``attitude_controller``:
+    'px4', 'ladrc', 'adrc' or 'pd'; ``attitude_gains`` override its gains (see
+    :func:`sim.firmware.attitude.firmware_params`).  ``max_thrust`` (N) or ``hover_thrust``
+    (normalized) set what normalized thrust 1.0 means (default: the rotors' maximum).
+    ``position_options``: keywords of :class:`sim.firmware.position.Navigator` (gains, speeds,
+    tilt limit).  ``position``/``yaw``: start pose; above the ground the vehicle starts flying
+    with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
+    ``land()`` touches down, disarm this long after (None: stay armed at idle).
+    """
+
+    def __init__(self, vehicle="crazyflie", wind=None, seed=0, sensors=None,
+                 attitude_controller="px4", physics_dt=0.001, attitude_rate_hz=None,
+                 position_rate_hz=100.0, max_thrust=None, hover_thrust=None, airmode=True,
+                 attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
+                 auto_disarm_s=2.0):
+        self.params = resolve_vehicle(vehicle)
+        vp = self.params
+        self.physics_dt = float(physics_dt)
+        if not (math.isfinite(self.physics_dt) and self.physics_dt > 0.0):
+            raise ValueError(f"physics_dt must be > 0 (got {physics_dt!r})")
+        self.seed = seed
+        wind_seed, sensor_seed = child_seeds(seed)
+        self.wind = resolve_wind(wind, wind_seed)
+        if isinstance(sensors, dict):
+            sensors = Sensors(**sensors, seed=sensor_seed)
+        elif sensors is not None:
+            sensors.reset(sensor_seed)
+        self.sensors = sensors
+        self.fw = Firmware(vp, attitude_controller=attitude_controller,
+                           physics_dt=self.physics_dt, attitude_rate_hz=attitude_rate_hz,
+                           position_rate_hz=position_rate_hz, max_thrust=max_thrust,
+                           hover_thrust=hover_thrust, airmode=airmode,
+                           attitude_gains=attitude_gains)
+        self.attitude_controller = attitude_controller
+        self.nav = PL.Navigator(h=self.fw.pos_dt, hover_thrust=self.fw.hover_thrust,
+                                **dict(position_options or {}))
+        self.auto_disarm_s = auto_disarm_s
+        self._pv = vp.pack()
+        pos = np.asarray(position, dtype=float)
+        airborne = pos[2] < 0.0
+        self._x = phys.initial_state(pos, yaw, vp.hover_omega if airborne else 0.0)
+        self._xm = self._x.copy()
+        self._fs = np.zeros(A.NFS)
+        self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
+        self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
+        self._S = np.zeros((3, self.fw.P.shape[1]))
+        self._W = np.zeros(2)
+        self._sp = np.zeros(A.NSP)
+        self._sp[A.SP_Q:A.SP_Q + 4] = self._x[phys.IX_Q:phys.IX_Q + 4]
+        self._sp[A.SP_ATT_VALID] = 1.0
+        self._omega = np.zeros(4)
+        self._wk = np.zeros(A.NWK)
+        self._v_wind = np.zeros(3)
+        self._f_ext = np.zeros(3)
+        self._tau_ext = np.zeros(3)
+        self._tick = 0
+        self._target_time = 0.0
+        self._mode = "idle"
+        self._landed_at = None
+        self.home = pos.copy()
+        self._measure()
+
+    # -- read-outs -------------------------------------------------------------------------------
+    @property
+    def time(self):
+        """Seconds since boot (simulated)."""
+        return self._tick * self.physics_dt
+
+    @property
+    def state(self):
+        """Copy of the true state x (17): position, velocity, quaternion, body rates, rotors."""
+        return self._x.copy()
+
+    @property
+    def armed(self):
+        return self._fs[A.FS_ARMED] != 0.0
+
+    @property
+    def landed(self):
+        return self._fs[A.FS_LANDED] != 0.0
+
+    @property
+    def mode(self):
+        return self._mode
+
+    @property
+    def hover_thrust(self):
+        """Normalized thrust that holds a hover (weight / the thrust that 1.0 means)."""
+        return self.fw.hover_thrust
+
+    @property
+    def rotor_commands(self):
+        """Rotor speed commands of the last firmware step (rad/s)."""
+        return self._omega.copy()
+
+    @property
+    def wrench(self):
+        """[T, tau_x, tau_y, tau_z] the mixer achieved in the last firmware step (N, N m)."""
+        return self._fs[A.FS_WRENCH:A.FS_WRENCH + 4].copy()
+
+    @property
+    def attitude_setpoint(self):
+        """(quaternion, normalized thrust) the inner loop is tracking."""
+        return self._sp[A.SP_Q:A.SP_Q + 4].copy(), float(self._sp[A.SP_THRUST])
+
+    @property
+    def observer(self):
+        """(3, 3) Euler-channel observer estimates z1, z2, z3 per axis (ladrc/adrc kinds)."""
+        return self._S[:, 0:3].copy()
+
+    def reported(self):
+        """The state as the firmware last measured it (truth when no sensor model is set)."""
+        y = self._xm if self.sensors is not None else self._x
+        q = y[phys.IX_Q:phys.IX_Q + 4].copy()
+        e = np.empty(3)
+        G.quat_to_euler(q, e)
+        return Reported(self.time, y[0:3].copy(), y[3:6].copy(), q, e,
+                        y[phys.IX_W:phys.IX_W + 3].copy())
+
+    def true_disturbance(self):
+        """Acceleration (NED, m/s^2) the environment adds beyond rotor thrust and gravity.
+
+        Drag on the air-relative velocity (wind and the vehicle's own motion), rotor drag and
+        direct wind forces, divided by the mass, at the current state with the wind of the last
+        step.  This is what a position-loop observer's disturbance estimate should approach.
+        """
+        xdot = np.empty(phys.NX)
+        phys.derivatives(self._x, self._omega, self._pv, self._v_wind, self._f_ext,
+                         self._tau_ext, xdot)
+        vp = self.params
+        w = self._x[phys.IX_ROT:phys.IX_ROT + 4]
+        thrust = vp.k_f * float(np.sum(w * w))
+        R = phys.rotation_matrix(self._x[phys.IX_Q:phys.IX_Q + 4])
+        a = xdot[3:6].copy()
+        a[2] -= phys.GRAVITY
+        a += R[:, 2] * thrust / vp.mass
+        return a
+
+    # -- commands --------------------------------------------------------------------------------
+    def arm(self):
+        if self.armed:
+            return
+        self._fs[A.FS_ARMED] = 1.0
+        self.nav.reset()
+        if self.landed:
+            self.home = self._x[0:3].copy()
+        if self._mode not in ("attitude", "position"):
+            self._set_idle()
+
+    def disarm(self, force=False):
+        if not self.armed:
+            return
+        if not self.landed and not force:
+            raise CommandRejected("disarm refused: the vehicle is flying (use force=True)")
+        self._fs[A.FS_ARMED] = 0.0
+        self._landed_at = None
+        self._mode = "idle"
+
+    def set_attitude_target(self, q, thrust, body_rates=None, type_mask=0):
+        """Offboard attitude (quaternion [w, x, y, z] body -> NED) and normalized thrust 0..1.
+
+        ``type_mask`` as SET_ATTITUDE_TARGET: 1/2/4 ignore roll/pitch/yaw rate, 64 ignore
+        thrust (keep the last), 128 ignore the attitude (body rates only).  With an attitude,
+        given rates are feed-forward.
+        """
+        sp = self._sp
+        mask = int(type_mask)
+        if not mask & IGNORE_ATTITUDE:
+            qa = np.asarray(q, dtype=float).reshape(4)
+            n = float(np.linalg.norm(qa))
+            if not (np.all(np.isfinite(qa)) and n > 1e-6):
+                raise ValueError(f"attitude quaternion must be finite and non-zero (got {q!r})")
+            sp[A.SP_Q:A.SP_Q + 4] = qa / n
+        sp[A.SP_ATT_VALID] = 0.0 if mask & IGNORE_ATTITUDE else 1.0
+        for i, bit in enumerate((IGNORE_ROLL_RATE, IGNORE_PITCH_RATE, IGNORE_YAW_RATE)):
+            given = body_rates is not None and not mask & bit
+            sp[A.SP_RATE_VALID + i] = 1.0 if given else 0.0
+            sp[A.SP_RATES + i] = float(body_rates[i]) if given else 0.0
+            if given and not math.isfinite(sp[A.SP_RATES + i]):
+                raise ValueError(f"body rates must be finite (got {body_rates!r})")
+        if not mask & IGNORE_THRUST:
+            t = float(thrust)
+            if not math.isfinite(t):
+                raise ValueError(f"thrust must be finite (got {thrust!r})")
+            sp[A.SP_THRUST] = min(max(t, 0.0), 1.0)
+        self._mode = "attitude"
+
+    def set_position_target(self, pos=None, vel=None, acc=None, yaw=None, yaw_rate=None):
+        """Offboard position/velocity/acceleration target (NED); None or NaN = ignored."""
+        if pos is None and vel is None and acc is None:
+            raise ValueError("a position target needs at least one of pos, vel, acc")
+        self.nav.set_target(pos, vel, acc, yaw, yaw_rate, yaw_now=self._yaw())
+        self._mode = "position"
+
+    def takeoff(self, altitude):
+        """Climb to ``altitude`` m above home, then hold there."""
+        if not self.armed:
+            raise CommandRejected("takeoff refused: disarmed")
+        alt = float(altitude)
+        if not (math.isfinite(alt) and alt > 0.0):
+            raise ValueError(f"takeoff altitude must be > 0 (got {altitude!r})")
+        r = self.reported()
+        self.nav.takeoff(r.position, r.euler[2], self.home[2] - alt)
+        self._landed_at = None
+        self._mode = "takeoff"
+
+    def land(self):
+        if not self.armed or self.landed:
+            self._set_idle()
+            return
+        r = self.reported()
+        self.nav.land(r.position, r.euler[2])
+        self._mode = "land"
+
+    def hold(self):
+        if not self.armed or self.landed:
+            self._set_idle()
+            return
+        r = self.reported()
+        self.nav.hold(r.position, r.euler[2])
+        self._mode = "hold"
+
+    # -- simulation ------------------------------------------------------------------------------
+    def step(self, dt):
+        """Advance the simulation by dt seconds (a whole number of physics steps, rounded)."""
+        if not (math.isfinite(dt) and dt >= 0.0):
+            raise ValueError(f"dt must be >= 0 (got {dt!r})")
+        self._target_time += float(dt)
+        end = int(math.floor(self._target_time / self.physics_dt + 1e-6))
+        fw = self.fw
+        per_step = self.wind is not None or self.sensors is not None
+        while self._tick < end:
+            tick = self._tick
+            if per_step:
+                self._measure()
+            if tick % fw.pos_div == 0:
+                self._outer()
+            n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
+            if self.wind is not None:
+                t = tick * self.physics_dt
+                v, f, tau = self.wind.step(t, self.physics_dt, self._x[0:3], self._x[3:6])
+                self._v_wind[:] = v
+                self._f_ext[:] = f
+                self._tau_ext[:] = tau
+            xm = self._xm if self.sensors is not None else self._x
+            advance(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp,
+                    self._omega, self._wk, self._pv, self._v_wind, self._f_ext, self._tau_ext,
+                    self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt)
+            self._tick += n
+
+    def _measure(self):
+        if self.sensors is not None:
+            self._xm = self.sensors.measure(self.time, self._x)
+
+    def _yaw(self):
+        return float(self.reported().euler[2])
+
+    def _set_idle(self):
+        self._sp[A.SP_Q:A.SP_Q + 4] = level_quaternion(self._yaw())
+        self._sp[A.SP_THRUST] = 0.0
+        self._sp[A.SP_ATT_VALID] = 1.0
+        self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
+        self._mode = "idle"
+
+    def _outer(self):
+        """Position-loop tick: flight-mode logic and, in the navigator's modes, the cascade."""
+        if self._mode == "land" and self.landed:
+            self._set_idle()
+            self._landed_at = self.time
+        if (self._mode == "idle" and self._landed_at is not None and self.armed
+                and self.auto_disarm_s is not None
+                and self.time - self._landed_at >= self.auto_disarm_s - 1e-9):
+            self.disarm()
+        if self._mode in PL.Navigator.MODES:
+            r = self.reported()
+            q, thrust = self.nav.update(r.position, r.velocity, self.landed)
+            self._sp[A.SP_Q:A.SP_Q + 4] = q
+            self._sp[A.SP_THRUST] = thrust
+            self._sp[A.SP_ATT_VALID] = 1.0
+            self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
+            self._mode = self.nav.mode
+
+
+def level_quaternion(yaw):
+    """Level attitude quaternion with heading ``yaw``."""
+    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
