@@ -255,6 +255,11 @@ class SimVehicle:
         return self._sp[A.SP_Q:A.SP_Q + 4].copy(), float(self._sp[A.SP_THRUST])
 
     @property
+    def wind_velocity(self):
+        """Air velocity at the vehicle over the last physics step (NED, m/s)."""
+        return self._v_wind.copy()
+
+    @property
     def observer(self):
         """(3, 3) Euler-channel observer estimates z1, z2, z3 per axis (ladrc/adrc kinds)."""
         return self._S[:, 0:3].copy()
