@@ -149,7 +149,10 @@ class SimVehicle:
 
     ``vehicle``: a name in configs/vehicles, a YAML path or a VehicleParams.  ``wind``: None, a
     name in configs/wind, a path, a mapping or a :class:`sim.wind.Wind`.  ``sensors``: None
-    (truth), a :class:`sim.sensors.Sensors` or its keyword mapping.  ``attitude_controller``:
+    (truth), a :class:`sim.sensors.Sensors` or its keyword mapping; its noise is what the
+    firmware's loops see, its latency delays only what :meth:`reported` returns (the link to
+    the companion), as an autopilot's inner loop runs on fresh gyro data whatever its telemetry
+    lags.  ``attitude_controller``:
     'px4', 'ladrc', 'adrc' or 'pd'; ``attitude_gains`` override its gains (see
     :func:`sim.firmware.attitude.firmware_params`).  ``max_thrust`` (N) or ``hover_thrust``
     (normalized) set what normalized thrust 1.0 means (default: the rotors' maximum).
@@ -174,9 +177,13 @@ class SimVehicle:
         self.wind = resolve_wind(wind, wind_seed)
         if isinstance(sensors, dict):
             sensors = Sensors(**sensors, seed=sensor_seed)
-        elif sensors is not None:
-            sensors.reset(sensor_seed)
         self.sensors = sensors
+        self._estimate = self._report = None
+        if sensors is not None:
+            # the firmware flies on the noisy estimate at once; the latency is the report path's
+            self._estimate = Sensors(noise=sensors.noise, seed=sensor_seed)
+            if sensors.latency_s > 0.0:
+                self._report = Sensors(latency_s=sensors.latency_s)
         self.fw = Firmware(vp, attitude_controller=attitude_controller,
                            physics_dt=self.physics_dt, attitude_rate_hz=attitude_rate_hz,
                            position_rate_hz=position_rate_hz, max_thrust=max_thrust,
@@ -191,6 +198,7 @@ class SimVehicle:
         airborne = pos[2] < 0.0
         self._x = phys.initial_state(pos, yaw, vp.hover_omega if airborne else 0.0)
         self._xm = self._x.copy()
+        self._xr = self._x
         self._fs = np.zeros(A.NFS)
         self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
         self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
@@ -265,8 +273,9 @@ class SimVehicle:
         return self._S[:, 0:3].copy()
 
     def reported(self):
-        """The state as the firmware last measured it (truth when no sensor model is set)."""
-        y = self._xm if self.sensors is not None else self._x
+        """The state as the vehicle reports it: truth, or with a sensor model the firmware's
+        noisy estimate as of the last physics step, delayed by the model's latency."""
+        y = self._xr if self.sensors is not None else self._x
         q = y[phys.IX_Q:phys.IX_Q + 4].copy()
         e = np.empty(3)
         G.quat_to_euler(q, e)
@@ -406,7 +415,9 @@ class SimVehicle:
 
     def _measure(self):
         if self.sensors is not None:
-            self._xm = self.sensors.measure(self.time, self._x)
+            self._xm = self._estimate.measure(self.time, self._x)
+            self._xr = self._xm if self._report is None else self._report.measure(self.time,
+                                                                                  self._xm)
 
     def _yaw(self):
         return float(self.reported().euler[2])

@@ -141,6 +141,21 @@ def test_true_disturbance_is_the_external_acceleration():
     np.testing.assert_allclose(v.true_disturbance(), force / v.params.mass, rtol=0.02, atol=1e-9)
 
 
+def test_sensor_latency_delays_the_reports_not_the_firmware():
+    noise = {"position": 0.005, "velocity": 0.01, "attitude": 0.001, "rates": 0.005}
+    v = SimVehicle("x500", sensors={"noise": noise, "latency_s": 0.1})
+    v.arm()
+    v.takeoff(2.0)
+    v.step(1.0)
+    truth_before = v.state[2]
+    v.step(0.1)
+    assert v.reported().position[2] == pytest.approx(truth_before, abs=0.03)
+    assert v.state[2] < truth_before - 0.05  # still climbing
+    v.step(6.0)
+    assert v.mode == "hold"
+    assert np.abs(v.state[0:3] - [0.0, 0.0, -2.0]).max() < 0.05
+
+
 TURBULENT = {"components": [{"type": "constant", "speed": 3.0, "direction_from_deg": 45.0},
                             {"type": "dryden", "intensity": "light"}]}
 

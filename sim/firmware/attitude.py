@@ -357,12 +357,17 @@ def default_bandwidths(vehicle, kind):
 def firmware_params(vehicle, kind="px4", *, h, thrust_scale, mixer, bandwidth=None,
                     yaw_weight=0.4, rate_max=(math.radians(220.0), math.radians(220.0),
                                               math.radians(200.0)),
-                    d_cutoff_hz=0.0, integral_limit=0.3, observer_input="motor_model", **gains):
+                    d_cutoff_hz=30.0, integral_limit=0.3, observer_input="motor_model", **gains):
     """Firmware parameter vector and the Euler-channel parameters (3, NP) for ``kind``.
 
     ``gains`` override the PX4-like gains (att_p, rate_p, rate_i, rate_d: per-axis triples) or,
     for the Euler kinds, are passed to :class:`mavadrc.control.AttitudeController` (wc, wo, ...).
-    ``integral_limit`` is the rate integral limit as a fraction of the torque authority at hover.
+    ``bandwidth``: per-axis rad/s from which the defaults are designed (px4: the triple pole;
+    Euler kinds: wc, with wo = 4 wc).  ``yaw_weight``, ``rate_max`` (rad/s): as PX4's
+    MC_YAW_WEIGHT and MC_*RATE_MAX.  ``d_cutoff_hz``: low-pass of the rate D term (PX4's
+    IMU_DGYRO_CUTOFF; 0 = none).  ``integral_limit``: rate integral limit as a fraction of the
+    torque authority at hover.  ``observer_input``: what the Euler channels' observers are fed,
+    'motor_model' (default) or 'command' (the mixer's output as is).
     """
     if kind not in KINDS:
         raise ValueError(f"attitude_controller must be one of {', '.join(KINDS)} (got {kind!r})")
@@ -438,6 +443,9 @@ def euler_gains(vehicle, kind, h, bandwidth, authority, gains):
         out.setdefault("c", 1.0)
         out.setdefault("r", tuple(acc_max))
         out.setdefault("r0", tuple(0.05 * acc_max))
+        # TD filter factor on the loop's time scale: a setpoint stream with noise (a position
+        # loop on noisy estimates) is smoothed rather than chased step by step
+        out.setdefault("h0", tuple(np.maximum(0.6 / wc, h)))
         out.setdefault("beta", [(3.0 * wo[i], 3.0 * wo[i] ** 2 * delta ** 0.5,
                                  wo[i] ** 3 * delta ** 0.75) for i in range(3)])
     return out

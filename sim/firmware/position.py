@@ -2,8 +2,8 @@
 
 - :func:`position_step`: PX4's cascade (mc_pos_control).  Position error times a P gain plus the
   velocity feed-forward gives a velocity setpoint (limited: horizontal speed, climb and descent
-  rates); a velocity PID (D on the measured velocity, I with anti-windup against the limits of
-  the attitude map) plus the acceleration feed-forward gives a desired acceleration, which
+  rates); a velocity PID (D on the measured velocity low-passed at 5 Hz, as PX4's MPC_VELD_LP;
+  I with anti-windup against the limits of the attitude map) plus the acceleration feed-forward gives a desired acceleration, which
   :func:`mavadrc.control.geometry.accel_to_attitude` turns into attitude + normalized thrust
   (tilt limit, altitude first).  Per axis, a NaN setpoint component means "not given", like the
   ignore mask of SET_POSITION_TARGET_LOCAL_NED: no position -> velocity control; no position and
@@ -36,13 +36,15 @@ PP_VXY_MAX = 15  # horizontal speed limit (m/s)         MPC_XY_VEL_MAX 12
 PP_VUP_MAX = 16  # climb rate limit (m/s)               MPC_Z_VEL_MAX_UP 3
 PP_VDN_MAX = 17  # descent rate limit (m/s)             MPC_Z_VEL_MAX_DN 1.5
 PP_H = 18  # step (s)
-NPP = 19
+PP_D_ALPHA = 19  # low-pass factor per step of the velocity derivative  MPC_VELD_LP 5 Hz
+NPP = 20
 
 # position loop state
 PS_INT = 0  # 3: velocity integrals (m/s^2)
 PS_PREV = 3  # 3: previous measured velocity
 PS_INIT = 6
-NPS = 7
+PS_DV = 7  # 3: filtered velocity derivative (m/s^2)
+NPS = 10
 
 # position setpoint
 PSP_POS = 0  # 3
@@ -89,15 +91,19 @@ def position_step(ps, pp, M, pos, vel, sp, yaw, landed, out):
     if ps[PS_INIT] == 0.0:
         for i in range(3):
             ps[PS_PREV + i] = vel[i]
+            ps[PS_DV + i] = 0.0
         ps[PS_INIT] = 1.0
+    for i in range(3):
+        dv = (vel[i] - ps[PS_PREV + i]) / h
+        ps[PS_DV + i] += pp[PP_D_ALPHA] * (dv - ps[PS_DV + i])
+        ps[PS_PREV + i] = vel[i]
     acc = np.empty(3)
     for i in range(3):
         a = sp[PSP_ACC + i] if math.isfinite(sp[PSP_ACC + i]) else 0.0
         if math.isfinite(vsp[i]):
-            dv = (vel[i] - ps[PS_PREV + i]) / h
-            a += pp[PP_KV + i] * (vsp[i] - vel[i]) + ps[PS_INT + i] - pp[PP_KD + i] * dv
+            a += (pp[PP_KV + i] * (vsp[i] - vel[i]) + ps[PS_INT + i]
+                  - pp[PP_KD + i] * ps[PS_DV + i])
         acc[i] = a
-        ps[PS_PREV + i] = vel[i]
     G.accel_to_attitude(acc[0], acc[1], acc[2], yaw, M, out)
     for i in range(3):
         out[G.NO + i] = acc[i]
@@ -140,7 +146,7 @@ def land_detect(fs, fp, thrust, vel, dt):
 
 def position_params(*, h, kp=(0.95, 0.95, 1.0), kv=(1.8, 1.8, 4.0), ki=(0.4, 0.4, 2.0),
                     kd=(0.2, 0.2, 0.0), int_limit=(5.0, 5.0, 0.8 * G.GRAVITY), vel_max_xy=12.0,
-                    vel_max_up=3.0, vel_max_down=1.5):
+                    vel_max_up=3.0, vel_max_down=1.5, d_cutoff_hz=5.0):
     """Parameter vector of :func:`position_step` (defaults: PX4's)."""
     pp = np.empty(NPP)
     for idx, name, val in ((PP_KP, "kp", kp), (PP_KV, "kv", kv), (PP_KI, "ki", ki),
@@ -155,6 +161,9 @@ def position_params(*, h, kp=(0.95, 0.95, 1.0), kv=(1.8, 1.8, 4.0), ki=(0.4, 0.4
         if not (math.isfinite(val) and val > 0.0):
             raise ValueError(f"{name} must be > 0 (got {val!r})")
         pp[idx] = val
+    if not (math.isfinite(d_cutoff_hz) and d_cutoff_hz >= 0.0):
+        raise ValueError(f"d_cutoff_hz must be >= 0 (got {d_cutoff_hz!r})")
+    pp[PP_D_ALPHA] = 1.0 if d_cutoff_hz == 0.0 else -math.expm1(-2.0 * math.pi * d_cutoff_hz * h)
     return pp
 
 
