@@ -50,6 +50,17 @@ def test_inner_loop_tracks_a_10_degree_roll_step_within_0_3_s(name, kind):
     assert abs(math.degrees(v.reported().euler[1])) < 0.1
 
 
+@pytest.mark.parametrize("kind", ["px4", "ladrc"])
+def test_slower_inner_loop_rate_still_tracks(kind):
+    v = hovering("x500", kind, attitude_rate_hz=250.0, position_rate_hz=50.0)
+    v.step(0.2)
+    v.set_attitude_target(ROLL10, v.hover_thrust)
+    v.step(0.4)
+    assert math.degrees(v.reported().euler[0]) == pytest.approx(10.0, abs=1.0)
+    with pytest.raises(ValueError, match="attitude_rate_hz"):
+        SimVehicle("x500", attitude_rate_hz=300.0)
+
+
 @pytest.mark.parametrize("name,torque", [("crazyflie", (1.5e-3, -1.0e-3, 2.0e-4)),
                                          ("x500", (0.6, -0.4, 0.05))])
 def test_adrc_attitude_rejects_a_constant_torque_with_zero_steady_error(name, torque):
