@@ -320,7 +320,7 @@ def motor_time_constant(vehicle):
     return 0.5 * (vehicle.tau_up + vehicle.tau_down)
 
 
-def px4_gains(vehicle, bandwidth=(25.0, 25.0, 10.0), integral=0.1):
+def px4_gains(vehicle, bandwidth=(25.0, 25.0, 10.0), integral=0.05):
     """Rate and attitude gains of the PX4-like loop from a closed-loop bandwidth per axis (rad/s).
 
     Triple pole at -bandwidth against the motor lag (see the module notes).  The rate integral
