@@ -1,0 +1,99 @@
+"""`mavadrc sitl` / `python -m sim`: the bundled vehicle behind MAVLink, like PX4 SITL."""
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+
+from .server import SitlServer, read_signing_key
+
+
+def add_arguments(p):
+    p.add_argument("--vehicle", default="crazyflie",
+                   help="vehicle name in configs/vehicles or a YAML file (default: crazyflie)")
+    p.add_argument("--wind", default=None, help="wind name in configs/wind or a YAML file")
+    p.add_argument("--seed", type=int, default=0, help="seed of wind and sensor noise")
+    p.add_argument("--instance", type=int, default=0,
+                   help="instance N: ports + N, system id N + 1 (default 0)")
+    p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                   help="autopilot personality on the wire (default px4)")
+    p.add_argument("--attitude-controller", choices=("px4", "ladrc", "adrc", "pd"), default="px4",
+                   help="the vehicle's own attitude loop (default px4)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="advance the vehicle one step per setpoint received (as fast as the "
+                        "controller runs, deterministic)")
+    p.add_argument("--lockstep-rate", type=float, default=100.0,
+                   help="controller rate in lockstep: each setpoint advances 1/RATE s (default 100)")
+    p.add_argument("--signing-key", default=None,
+                   help="file with the 32-byte MAVLink 2 signing secret as 64 hex characters")
+    p.add_argument("--noise", action="store_true",
+                   help="report position/velocity/attitude/rates with typical sensor noise")
+    p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
+    p.add_argument("--home", default="47.397742,8.545594,488.0",
+                   help="home LAT,LON,ALT (deg, deg, m AMSL)")
+    p.add_argument("--offboard-port", type=int, default=None,
+                   help="UDP port the offboard link sends to (default 14540 + instance)")
+    p.add_argument("--gcs-port", type=int, default=None,
+                   help="UDP port the ground-station link sends to (default 14550)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop after this many wall-clock seconds (default: run until Ctrl-C)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every STATUSTEXT")
+    return p
+
+
+NOISE = {"position": 0.01, "velocity": 0.02, "attitude": 0.002, "rates": 0.01}
+
+
+def make_server(args):
+    from .vehicle import SimVehicle
+
+    sensors = None
+    if args.noise or args.latency > 0.0:
+        sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}
+    vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed, sensors=sensors,
+                         attitude_controller=args.attitude_controller)
+    try:
+        home = tuple(float(v) for v in args.home.split(","))
+        if len(home) != 3:
+            raise ValueError
+    except ValueError:
+        raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
+    key = read_signing_key(args.signing_key) if args.signing_key else None
+    return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
+                      lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
+                      offboard_port=args.offboard_port, gcs_port=args.gcs_port)
+
+
+def run(args):
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s: %(message)s")
+    server = make_server(args)
+    ports = server.local_ports
+    print(f"mavadrc sitl: {args.vehicle} as {args.autopilot}, system {server.sysid}; "
+          f"offboard link -> 127.0.0.1:{server.links[0].peers[0][1]} (local {ports['offboard']}), "
+          f"ground station -> 127.0.0.1:{server.links[1].peers[0][1]} (local {ports['gcs']})"
+          f"{', lockstep' if server.lockstep else ''}", flush=True)
+    if args.duration is not None:
+        timer = threading.Timer(args.duration, server.stop_soon)
+        timer.daemon = True
+        timer.start()
+    signal.signal(signal.SIGTERM, lambda *_: server.stop_soon())
+    try:
+        server.run()
+    except KeyboardInterrupt:
+        pass
+    s = server.stats
+    print(f"mavadrc sitl: stopped at t = {server.time:.2f} s; {s.messages} messages, "
+          f"{s.dropped()} datagrams/frames dropped, {s.other_target} for other systems, "
+          f"{s.setpoints_rejected} setpoints rejected", flush=True)
+    return 0
+
+
+def main(argv=None):
+    parser = add_arguments(argparse.ArgumentParser(prog="python -m sim", description=__doc__))
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

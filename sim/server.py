@@ -1,0 +1,1108 @@
+"""The bundled vehicle behind a MAVLink 2 endpoint on UDP, laid out like PX4 SITL.
+
+Two links, as PX4 SITL has them: the offboard/API link sends to 127.0.0.1:14540+N (MAVSDK and
+the `mavadrc fly` companion listen there) and the ground-station link sends to 127.0.0.1:14550
+(QGroundControl, MAVProxy).  Each link binds its own local port (14580+N and 18570+N, PX4's
+numbers) and also answers whoever writes to it.  Every datagram is parsed on its own; anything
+malformed, badly signed, unknown or aimed at another system is dropped and counted, never acted
+on.
+
+Clocks: in real time the physics advances on the wall clock in ticks of ``tick`` seconds.  In
+lockstep the vehicle advances by one ``lockstep_dt`` for each setpoint that arrives, so a
+closed loop runs as fast as both sides allow and gives the same flight for the same seed; if
+setpoints stop for ``lockstep_timeout`` (3 s) of wall time while armed, the offboard-loss failsafe
+engages and the clock falls back to real time so the vehicle can carry it out.
+"""
+
+import logging
+import math
+import select
+import socket
+import struct
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from . import personality as PP
+from . import wind as W
+
+log = logging.getLogger("mavadrc.sitl")
+
+EARTH_RADIUS = 6378137.0
+FORCE_ARM_MAGIC = 21196
+UNSIGNED_ALLOWED = (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS)
+
+# ignore bits of SET_POSITION_TARGET_LOCAL_NED
+PT_POS = 0x7
+PT_VEL = 0x38
+PT_ACC = 0x1C0
+PT_YAW = 0x400
+PT_YAW_RATE = 0x800
+# ignore bits of SET_ATTITUDE_TARGET
+AT_RATES = 0x7
+AT_THROTTLE = 64
+AT_ATTITUDE = 128
+
+MSG = mavlink  # message ids as MSG.MAVLINK_MSG_ID_*
+
+# PX4's default onboard-link rates (Hz) and a slower ground-station set
+ONBOARD_RATES = {
+    MSG.MAVLINK_MSG_ID_ATTITUDE: 100.0,
+    MSG.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+    MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50.0,
+    MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+    MSG.MAVLINK_MSG_ID_ODOMETRY: 30.0,
+    MSG.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
+    MSG.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
+    MSG.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    MSG.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    MSG.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    MSG.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    MSG.MAVLINK_MSG_ID_GPS_RAW_INT: 5.0,
+}
+GCS_RATES = {
+    MSG.MAVLINK_MSG_ID_ATTITUDE: 20.0,
+    MSG.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 10.0,
+    MSG.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+    MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 5.0,
+    MSG.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    MSG.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    MSG.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    MSG.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    MSG.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    MSG.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+}
+
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+           | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
+           | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY | mavlink.MAV_SYS_STATUS_GEOFENCE)
+PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+
+@dataclass
+class Stats:
+    """What the vehicle received and what it refused, by reason."""
+    datagrams: int = 0
+    messages: int = 0
+    bad_prefix: int = 0
+    bad_crc: int = 0
+    bad_length: int = 0
+    truncated: int = 0
+    unknown_msgid: int = 0
+    unsigned_rejected: int = 0
+    bad_signature: int = 0
+    other_target: int = 0
+    setpoints_rejected: int = 0
+    setpoints_ignored: int = 0
+    commands: int = 0
+    overruns: int = 0
+    by_reason: dict = field(default_factory=dict)
+
+    def dropped(self):
+        return (self.bad_prefix + self.bad_crc + self.bad_length + self.truncated
+                + self.unknown_msgid + self.unsigned_rejected + self.bad_signature)
+
+
+class _Sender:
+    """File-like target for pymavlink's MAVLink.send: writes each frame to every peer of a link."""
+
+    def __init__(self, link):
+        self.link = link
+
+    def write(self, buf):
+        for peer in self.link.peers:
+            try:
+                self.link.sock.sendto(buf, peer)
+            except OSError:
+                pass
+
+
+class Link:
+    def __init__(self, name, sock, remote, mav, rates):
+        self.name = name
+        self.sock = sock
+        self.peers = [remote] if remote else []
+        self.mav = mav
+        mav.file = _Sender(self)
+        self.default_rates = dict(rates)
+        # schedules in integer microseconds of vehicle time, so lockstep never drifts a step
+        self.intervals = {mid: int(round(1e6 / hz)) for mid, hz in rates.items()}
+        self.next_due = {mid: 0 for mid in rates}
+
+    def learn(self, addr):
+        if addr not in self.peers:
+            self.peers.append(addr)
+
+
+class SitlServer:
+    """Runs a :class:`sim.vehicle.SimVehicle` behind MAVLink.
+
+    ``SitlServer(vehicle, autopilot="px4", instance=0).run()`` blocks; ``start()`` runs it in a
+    thread (tests) and ``stop()`` ends it.
+    """
+
+    def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
+                 lockstep_timeout=3.0, tick=0.004, signing_key=None, home=(47.397742, 8.545594, 488.0),
+                 host="127.0.0.1", offboard_port=None, gcs_port=None, bind_offboard=None,
+                 bind_gcs=None):
+        self.vehicle = vehicle
+        self.ap = PP.personality(autopilot)
+        self.instance = int(instance)
+        self.sysid = self.instance + 1
+        self.lockstep = bool(lockstep)
+        self.lockstep_dt = float(lockstep_dt)
+        self.lockstep_timeout = float(lockstep_timeout)
+        self.tick = float(tick)
+        self.home = tuple(float(v) for v in home)
+        self.stats = Stats()
+        self.params = {name: (default, ptype) for name, default, ptype in self.ap.params}
+        self.params["MAV_SYS_ID" if autopilot == "px4" else "SYSID_THISMAV"] = (self.sysid, PP.INT)
+        hover_name = "MPC_THR_HOVER" if autopilot == "px4" else "MOT_THST_HOVER"
+        self.params[hover_name] = (float(vehicle.hover_thrust), PP.REAL)
+        self._param_names = [name for name, _, _ in self.ap.params]
+        self._signing_key = signing_key
+        self._boot_wall = time.time()
+        self.mode = self.ap.mode(self.ap.initial_mode)
+        self.failsafe = False
+        self._last_setpoint_t = -math.inf  # vehicle time of the last proof-of-life setpoint
+        self._last_setpoint_wall = -math.inf
+        self._airborne_since_arm = False
+        self._armed_t = 0.0
+        self._landed_t = None
+        self._rtl_phase = None
+        self._guided_att = None  # ArduPilot attitude target held with a climb-rate thrust
+        self._following_attitude = False  # ArduPilot: attitude targets are streaming (GUID_TIMEOUT)
+        self._att_target = (np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3), 0)
+        self._statustext_last = {}
+        self._pending_steps = 0
+        self._rep = None
+        self._running = False
+        self._thread = None
+        self._last_hb_wall = 0.0
+        self._last_hb_t = -10**9
+        self._base_wind = vehicle.wind
+        vehicle.auto_disarm_s = None  # the autopilot disarms after landing (COM_DISARM_LAND)
+        self.links = []
+        off_remote = (host, 14540 + self.instance if offboard_port is None else offboard_port)
+        gcs_remote = (host, 14550 if gcs_port is None else gcs_port)
+        off_bind = 14580 + self.instance if bind_offboard is None else bind_offboard
+        gcs_bind = 18570 + self.instance if bind_gcs is None else bind_gcs
+        for name, remote, port, rates in (("offboard", off_remote, off_bind, ONBOARD_RATES),
+                                          ("gcs", gcs_remote, gcs_bind, GCS_RATES)):
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind((host, port))
+            sock.setblocking(False)
+            mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+            if signing_key is not None:
+                self._setup_signing(mav)
+            self.links.append(Link(name, sock, remote, mav, rates))
+        self._apply_mode_behaviour()
+
+    # --- setup -----------------------------------------------------------------------------------
+
+    def _setup_signing(self, mav):
+        s = mav.signing
+        s.secret_key = bytes(self._signing_key)
+        s.sign_outgoing = True
+        s.link_id = 0
+        s.timestamp = int((time.time() - 1420070400) * 1e5)
+        s.allow_unsigned_callback = lambda _mav, msgid: msgid in UNSIGNED_ALLOWED
+
+    @property
+    def local_ports(self):
+        return {link.name: link.sock.getsockname()[1] for link in self.links}
+
+    # --- main loop -------------------------------------------------------------------------------
+
+    def start(self):
+        import threading
+        self._running = True
+        self._thread = threading.Thread(target=self._loop, name="mavadrc-sitl", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self):
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for link in self.links:
+            link.sock.close()
+
+    def stop_soon(self):
+        """Ask a running loop to end (from a signal handler or a timer)."""
+        self._running = False
+
+    def run(self):
+        self._running = True
+        try:
+            self._loop()
+        finally:
+            for link in self.links:
+                link.sock.close()
+
+    def _loop(self):
+        socks = [link.sock for link in self.links]
+        next_tick = time.monotonic()
+        while self._running:
+            now = time.monotonic()
+            if self.lockstep and not self._lockstep_stalled():
+                timeout = 0.1
+            else:
+                timeout = max(0.0, next_tick - now)
+            readable, _, _ = select.select(socks, [], [], timeout)
+            for sock in readable:
+                self._drain(sock)
+            if self.lockstep and not self._lockstep_stalled():
+                while self._pending_steps > 0:
+                    self._pending_steps -= 1
+                    self.advance(self.lockstep_dt)
+                self._wall_heartbeat()
+                next_tick = time.monotonic()
+                continue
+            now = time.monotonic()
+            if now >= next_tick:
+                self.advance(self.tick)
+                next_tick += self.tick
+                if now - next_tick > 0.25:  # fell far behind (machine busy): resynchronise
+                    self.stats.overruns += 1
+                    next_tick = now
+
+    def _lockstep_stalled(self):
+        """In lockstep, setpoints stopped for ``lockstep_timeout`` wall seconds while flying."""
+        if not (self.vehicle.armed and self._last_setpoint_wall > -math.inf):
+            return False
+        return time.monotonic() - self._last_setpoint_wall > self.lockstep_timeout
+
+    def _wall_heartbeat(self):
+        now = time.monotonic()
+        if now - self._last_hb_wall >= 1.0:
+            self._send_all(self._heartbeat())
+            self._last_hb_wall = now
+
+    def _drain(self, sock):
+        link = next(lk for lk in self.links if lk.sock is sock)
+        while True:
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            self.stats.datagrams += 1
+            link.learn(addr)
+            for msg in self._parse(link, data):
+                try:
+                    self._handle(link, msg)
+                except Exception:  # a message we cannot act on never stops the vehicle
+                    log.exception("error handling %s", msg.get_type())
+                    self._count("handler_error")
+
+    def _parse(self, link, data):
+        """Decode one datagram on its own; count and drop everything that is not a good frame."""
+        parser = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        parser.robust_parsing = True
+        parser.signing = link.mav.signing
+        out = []
+        try:
+            msgs = parser.parse_buffer(data) or []
+        except Exception:
+            self.stats.bad_length += 1
+            return out
+        for m in msgs:
+            t = m.get_type()
+            if t == "BAD_DATA":
+                reason = str(getattr(m, "reason", ""))
+                if "prefix" in reason:
+                    self.stats.bad_prefix += 1
+                elif "CRC" in reason:
+                    self.stats.bad_crc += 1
+                elif "signature" in reason:
+                    if m.data and len(m.data) > 2 and (m.data[2] & mavlink.MAVLINK_IFLAG_SIGNED):
+                        self.stats.bad_signature += 1
+                    else:
+                        self.stats.unsigned_rejected += 1
+                else:
+                    self.stats.bad_length += 1
+                continue
+            if t == "UNKNOWN" or m.get_msgId() < 0:
+                self.stats.unknown_msgid += 1
+                continue
+            out.append(m)
+        if parser.buf_len() > 0:
+            self.stats.truncated += 1
+        self.stats.messages += len(out)
+        return out
+
+    # --- time and physics ------------------------------------------------------------------------
+
+    @property
+    def time(self):
+        return self.vehicle.time
+
+    def _boot_ms(self):
+        return int(round(self.vehicle.time * 1000.0)) & 0xFFFFFFFF
+
+    def advance(self, dt):
+        """Advance the vehicle by dt and do everything the autopilot does per step."""
+        self._guided_thrust()
+        self.vehicle.step(dt)
+        self._rep = None
+        self._supervise()
+        self._send_due()
+
+    def _loss_timeout(self):
+        if self.ap.name == "px4":
+            return float(self.params["COM_OF_LOSS_T"][0])
+        return float(self.params["GUID_TIMEOUT"][0])
+
+    def _supervise(self):
+        v = self.vehicle
+        t = v.time
+        if v.armed and not v.landed:
+            self._airborne_since_arm = True
+        # offboard loss
+        watched = self.ap.name == "px4" or self._following_attitude
+        if self.mode.behaviour == PP.OFFBOARD and v.armed and not self.failsafe and watched:
+            stalled = self.lockstep and self._lockstep_stalled()
+            if stalled or t - self._last_setpoint_t > self._loss_timeout():
+                self._offboard_lost()
+        # takeoff complete
+        if self.mode.behaviour == PP.TAKEOFF and v.mode == "hold" and self.ap.name == "px4":
+            self._set_mode(self.ap.mode("AUTO.LOITER"))
+        # return to launch: go home, then land
+        if self.mode.behaviour == PP.RTL and self._rtl_phase == "return" and v.armed:
+            p = self._reported().position
+            if math.hypot(p[0], p[1]) < 0.5:
+                self._rtl_phase = "land"
+                v.land()
+        # auto-disarm: landed after a flight, or never took off after arming
+        if v.armed:
+            if v.landed and self._airborne_since_arm:
+                if self._landed_t is None:
+                    self._landed_t = t
+                delay = float(self.params.get("COM_DISARM_LAND", (2.0,))[0])
+                if t - self._landed_t >= delay:
+                    self._disarm("landed")
+            else:
+                self._landed_t = None
+            prflt = self.params.get("COM_DISARM_PRFLT")
+            if (prflt and not self._airborne_since_arm and prflt[0] > 0
+                    and t - self._armed_t > prflt[0] and self.mode.behaviour != PP.OFFBOARD):
+                self._disarm("no takeoff")
+
+    def _offboard_lost(self):
+        self.failsafe = True
+        if self.ap.name == "px4":
+            action = int(self.params["COM_OBL_RC_ACT"][0])
+            target = {0: "POSCTL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO.RTL", 4: "AUTO.LAND",
+                      5: "AUTO.LOITER"}.get(action, "AUTO.LAND")
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL,
+                            f"Failsafe: offboard signal lost, switching to {target}")
+            self._set_mode(self.ap.mode(target))
+        else:
+            # ArduCopter: the attitude target timed out; level off and hold altitude in GUIDED
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, "Guided: target timeout, holding")
+            self._guided_att = None
+            self._following_attitude = False
+            self.failsafe = False
+            self.vehicle.hold()
+
+    def _guided_thrust(self):
+        """ArduPilot without GUID_OPTIONS bit 3: thrust is a climb rate; close that loop here."""
+        if self._guided_att is None or not self.vehicle.armed:
+            return
+        q, climb = self._guided_att
+        v = self._reported()
+        hover = float(self.params["MOT_THST_HOVER"][0])
+        tilt = max(0.3, 1.0 - 2.0 * (q[1] ** 2 + q[2] ** 2))
+        thrust = hover * (1.0 + 3.0 * (climb + v.velocity[2]) / 9.80665) / tilt
+        self.vehicle.set_attitude_target(q, min(max(thrust, 0.0), 1.0))
+
+    # --- sending ---------------------------------------------------------------------------------
+
+    def _send_all(self, msg):
+        if msg is None:
+            return
+        for link in self.links:
+            link.mav.send(msg)
+
+    def _send_due(self):
+        t = int(round(self.vehicle.time * 1e6))
+        if t - self._last_hb_t >= 1_000_000:
+            self._send_all(self._heartbeat())
+            self._last_hb_t = t
+            self._last_hb_wall = time.monotonic()
+        for link in self.links:
+            for mid, interval in link.intervals.items():
+                if not interval:
+                    continue
+                due = link.next_due.get(mid, 0)
+                if t >= due:
+                    msg = self._build(mid)
+                    if msg is not None:
+                        link.mav.send(msg)
+                    nxt = due + interval
+                    link.next_due[mid] = nxt if nxt > t else t + interval
+
+    def statustext(self, severity, text):
+        self._send_all(mavlink.MAVLink_statustext_message(severity, text[:50].encode()))
+        log.info("STATUSTEXT %s", text)
+
+    def _statustext_limited(self, key, severity, text):
+        now = time.monotonic()
+        if now - self._statustext_last.get(key, -10.0) >= 1.0:
+            self._statustext_last[key] = now
+            self.statustext(severity, text)
+
+    def _heartbeat(self):
+        v = self.vehicle
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if v.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        if self.ap.name == "ardupilot":
+            base |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+            if self.mode.behaviour == PP.OFFBOARD:
+                base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        if self.failsafe:
+            status = mavlink.MAV_STATE_CRITICAL
+        elif v.armed:
+            status = mavlink.MAV_STATE_ACTIVE
+        else:
+            status = mavlink.MAV_STATE_STANDBY
+        return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, self.ap.autopilot,
+                                                 base, self.mode.custom_mode, status, 3)
+
+    def _landed_state(self):
+        v = self.vehicle
+        if v.landed:
+            return mavlink.MAV_LANDED_STATE_ON_GROUND
+        if self.mode.behaviour == PP.TAKEOFF:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
+        if self.mode.behaviour == PP.LAND or (self.mode.behaviour == PP.RTL
+                                              and self._rtl_phase == "land"):
+            return mavlink.MAV_LANDED_STATE_LANDING
+        return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def _global(self, p):
+        lat0, lon0, alt0 = self.home
+        lat = lat0 + math.degrees(p[0] / EARTH_RADIUS)
+        lon = lon0 + math.degrees(p[1] / (EARTH_RADIUS * math.cos(math.radians(lat0))))
+        return int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - p[2]
+
+    def _reported(self):
+        """The vehicle's reported state, read once per step for all the messages built from it."""
+        if self._rep is None:
+            self._rep = self.vehicle.reported()
+        return self._rep
+
+    def _build(self, mid):
+        """Build message ``mid`` from the vehicle's reported state; None if not produced."""
+        v = self.vehicle
+        r = self._reported()
+        ms = self._boot_ms()
+        p, vel, q, e, w = r.position, r.velocity, r.quaternion, r.euler, r.rates
+        M = mavlink
+        if mid == M.MAVLINK_MSG_ID_ATTITUDE:
+            return M.MAVLink_attitude_message(ms, e[0], e[1], e[2], w[0], w[1], w[2])
+        if mid == M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+            return M.MAVLink_attitude_quaternion_message(ms, q[0], q[1], q[2], q[3], w[0], w[1],
+                                                         w[2], [0.0, 0.0, 0.0, 0.0])
+        if mid == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            return M.MAVLink_local_position_ned_message(ms, p[0], p[1], p[2], vel[0], vel[1],
+                                                        vel[2])
+        if mid == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            lat, lon, alt = self._global(p)
+            hdg = int(round(math.degrees(e[2]) * 100.0)) % 36000
+            return M.MAVLink_global_position_int_message(
+                ms, lat, lon, int(round(alt * 1000)), int(round(-p[2] * 1000)),
+                int(round(vel[0] * 100)), int(round(vel[1] * 100)), int(round(vel[2] * 100)), hdg)
+        if mid == M.MAVLINK_MSG_ID_ODOMETRY:
+            R = _rotmat(q)
+            vb = R.T @ vel
+            nan21 = [math.nan] * 21
+            return M.MAVLink_odometry_message(
+                int(round(v.time * 1e6)), M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD, p[0], p[1], p[2],
+                list(map(float, q)), vb[0], vb[1], vb[2], w[0], w[1], w[2], nan21, nan21, 0,
+                M.MAV_ESTIMATOR_TYPE_NAIVE, 100)
+        if mid == M.MAVLINK_MSG_ID_ATTITUDE_TARGET:
+            qt, thrust, rates, mask = self._att_target
+            return M.MAVLink_attitude_target_message(ms, mask, list(map(float, qt)), rates[0],
+                                                     rates[1], rates[2], abs(thrust))
+        if mid == M.MAVLINK_MSG_ID_SYS_STATUS:
+            health = SENSORS | (0 if self.failsafe else PREARM)
+            pct = self._battery_remaining()
+            return M.MAVLink_sys_status_message(SENSORS | PREARM, SENSORS | PREARM, health, 200,
+                                                self._battery_mv(), -1, pct, 0, 0, 0, 0, 0, 0)
+        if mid == M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED,
+                                                        self._landed_state())
+        if mid == M.MAVLINK_MSG_ID_HOME_POSITION:
+            lat0, lon0, alt0 = self.home
+            return M.MAVLink_home_position_message(
+                int(round(lat0 * 1e7)), int(round(lon0 * 1e7)), int(round(alt0 * 1000)), 0.0, 0.0,
+                0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(round(v.time * 1e6)))
+        if mid == M.MAVLINK_MSG_ID_BATTERY_STATUS:
+            cells = [self._battery_mv() // 4] * 4 + [65535] * 6
+            return M.MAVLink_battery_status_message(0, M.MAV_BATTERY_FUNCTION_ALL,
+                                                    M.MAV_BATTERY_TYPE_LIPO, 2500, cells, -1, -1,
+                                                    -1, self._battery_remaining())
+        if mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
+            return M.MAVLink_system_time_message(int(time.time() * 1e6), ms)
+        if mid == M.MAVLINK_MSG_ID_GPS_RAW_INT:
+            lat, lon, alt = self._global(p)
+            cog = int(round(math.degrees(math.atan2(vel[1], vel[0])) * 100)) % 36000
+            return M.MAVLink_gps_raw_int_message(int(round(v.time * 1e6)), M.GPS_FIX_TYPE_3D_FIX, lat,
+                                                 lon, int(round(alt * 1000)), 80, 120,
+                                                 int(round(math.hypot(vel[0], vel[1]) * 100)),
+                                                 cog, 12)
+        if mid == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return M.MAVLink_autopilot_version_message(
+                self.ap.capabilities, self.ap.flight_sw_version, 0, 0, 1, b"mavadrc\0",
+                b"\0" * 8, b"\0" * 8, 0, 0, 0x4D41564144524300 + self.sysid)
+        return None
+
+    def _battery_remaining(self):
+        return int(max(5.0, 100.0 - 0.05 * self.vehicle.time))
+
+    def _battery_mv(self):
+        return int(16800 - 20 * (100 - self._battery_remaining()))
+
+    # --- receiving -------------------------------------------------------------------------------
+
+    def _count(self, reason):
+        self.stats.by_reason[reason] = self.stats.by_reason.get(reason, 0) + 1
+
+    def _for_us(self, msg):
+        ts = getattr(msg, "target_system", 0)
+        tc = getattr(msg, "target_component", 0)
+        if ts not in (0, self.sysid) or tc not in (0, 1):
+            self.stats.other_target += 1
+            return False
+        return True
+
+    def _handle(self, link, msg):
+        t = msg.get_type()
+        h = self._handlers.get(t)
+        if h is None:
+            return
+        if t != "HEARTBEAT" and hasattr(msg, "target_system") and not self._for_us(msg):
+            return
+        h(self, link, msg)
+
+    def _ack(self, link, msg, command, result):
+        link.mav.send(mavlink.MAVLink_command_ack_message(
+            command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _on_command(self, link, msg):
+        self.stats.commands += 1
+        params = [msg.param1, msg.param2, msg.param3, msg.param4]
+        if msg.get_type() == "COMMAND_INT":
+            params += [msg.x / 1e7, msg.y / 1e7, msg.z]
+        else:
+            params += [msg.param5, msg.param6, msg.param7]
+        try:
+            result, after = self._command(link, msg.command, params)
+        except Exception:  # never silence: a command that breaks is answered FAILED
+            log.exception("command %s failed", msg.command)
+            self._count("command_error")
+            result, after = mavlink.MAV_RESULT_FAILED, None
+        self._ack(link, msg, msg.command, result)
+        if after is not None:
+            after()
+
+    def _command(self, link, cmd, p):
+        """Carry out a command; returns (MAV_RESULT, optional follow-up sending after the ACK)."""
+        M = mavlink
+        R = M.MAV_RESULT_ACCEPTED
+        if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            force = _near(p[1], FORCE_ARM_MAGIC)
+            if _near(p[0], 1.0):
+                return self._arm(force), None
+            if _near(p[0], 0.0):
+                return self._disarm_cmd(force), None
+            return M.MAV_RESULT_DENIED, None
+        if cmd == M.MAV_CMD_DO_SET_MODE:
+            return self._set_mode_cmd(p), None
+        if cmd == M.MAV_CMD_NAV_TAKEOFF:
+            return self._takeoff_cmd(p[6]), None
+        if cmd == M.MAV_CMD_NAV_LAND:
+            return self._set_mode(self.ap.mode("AUTO.LAND" if self.ap.name == "px4" else "LAND")), None
+        if cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return self._set_mode(self.ap.mode("AUTO.RTL" if self.ap.name == "px4" else "RTL")), None
+        if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._set_interval(link, p[0], p[1]), None
+        if cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:
+            mid = int(p[0])
+            us = link.intervals.get(mid) or -1
+            return R, lambda: link.mav.send(M.MAVLink_message_interval_message(mid, us))
+        if cmd == M.MAV_CMD_REQUEST_MESSAGE:
+            mid = int(p[0]) if math.isfinite(p[0]) else -1
+            if mid in (M.MAVLINK_MSG_ID_HEARTBEAT,):
+                return R, lambda: link.mav.send(self._heartbeat())
+            if self._build(mid) is None:
+                return M.MAV_RESULT_UNSUPPORTED, None
+            return R, lambda: link.mav.send(self._build(mid))
+        if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            return R, lambda: link.mav.send(self._build(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
+        if cmd == M.MAV_CMD_GET_HOME_POSITION:
+            return R, lambda: link.mav.send(self._build(M.MAVLINK_MSG_ID_HOME_POSITION))
+        if cmd == M.MAV_CMD_NAV_LOITER_UNLIM:
+            return self._set_mode(self.ap.mode("AUTO.LOITER" if self.ap.name == "px4"
+                                               else "LOITER")), None
+        return M.MAV_RESULT_UNSUPPORTED, None
+
+    def _arm(self, force):
+        M = mavlink
+        v = self.vehicle
+        if v.armed:
+            return M.MAV_RESULT_ACCEPTED
+        if not force:
+            if not self.mode.armable:
+                self.statustext(M.MAV_SEVERITY_CRITICAL, f"Arming denied: not armable in {self.mode.name}")
+                return M.MAV_RESULT_DENIED
+            if self.mode.behaviour == PP.OFFBOARD and self.ap.name == "px4" and not self._stream_alive():
+                self.statustext(M.MAV_SEVERITY_CRITICAL, "Arming denied: no offboard signal")
+                return M.MAV_RESULT_DENIED
+            if not v.landed:
+                return M.MAV_RESULT_DENIED
+        v.arm()
+        self._airborne_since_arm = False
+        self._armed_t = v.time
+        self._landed_t = None
+        self.failsafe = False
+        self.statustext(M.MAV_SEVERITY_INFO, "Armed by external command")
+        self._send_all(self._heartbeat())
+        return M.MAV_RESULT_ACCEPTED
+
+    def _disarm_cmd(self, force):
+        M = mavlink
+        if not self.vehicle.armed:
+            return M.MAV_RESULT_ACCEPTED
+        if not force and not self.vehicle.landed:
+            self.statustext(M.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
+            return M.MAV_RESULT_DENIED
+        self._disarm("external command")
+        return M.MAV_RESULT_ACCEPTED
+
+    def _disarm(self, why):
+        self.vehicle.disarm()
+        self._guided_att = None
+        self.failsafe = False
+        self.statustext(mavlink.MAV_SEVERITY_INFO, f"Disarmed ({why})")
+        if self.mode.behaviour in (PP.LAND, PP.RTL, PP.TAKEOFF):
+            self.mode = self.ap.mode(self.ap.initial_mode)
+            self._apply_mode_behaviour()
+        self._send_all(self._heartbeat())
+
+    def _set_mode_cmd(self, p):
+        M = mavlink
+        base = int(p[0]) if math.isfinite(p[0]) else 0
+        if not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return M.MAV_RESULT_DENIED
+        if self.ap.name == "px4":
+            main = int(p[1]) if math.isfinite(p[1]) else 0
+            sub = int(p[2]) if math.isfinite(p[2]) else 0
+            custom = PP.px4_custom_mode(main, sub if main == 4 else 0)
+        else:
+            custom = int(p[1]) if math.isfinite(p[1]) else -1
+        mode = self.ap.mode_from_custom(custom)
+        if mode is None:
+            return M.MAV_RESULT_DENIED
+        return self._set_mode(mode)
+
+    def _stream_alive(self):
+        return self.vehicle.time - self._last_setpoint_t <= self._loss_timeout()
+
+    def _set_mode(self, mode):
+        M = mavlink
+        if mode.behaviour == PP.OFFBOARD and self.ap.name == "px4" and not self._stream_alive():
+            self.statustext(M.MAV_SEVERITY_CRITICAL, "Offboard denied: no setpoint stream")
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if mode.behaviour == PP.TAKEOFF and not self.vehicle.armed:
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        changed = mode is not self.mode
+        self.mode = mode
+        if changed or mode.behaviour != PP.OFFBOARD:
+            self._apply_mode_behaviour()
+        if mode.behaviour != PP.OFFBOARD:
+            self._guided_att = None
+            self._following_attitude = False
+        self.failsafe = self.failsafe and mode.behaviour != PP.OFFBOARD
+        if changed:
+            self._send_all(self._heartbeat())
+        return M.MAV_RESULT_ACCEPTED
+
+    def _apply_mode_behaviour(self):
+        v = self.vehicle
+        b = self.mode.behaviour
+        self._rtl_phase = None
+        if b == PP.HOLD:
+            if v.armed and not v.landed:
+                v.hold()
+        elif b == PP.LAND:
+            if v.armed:
+                v.land()
+        elif b == PP.RTL:
+            if v.armed and not v.landed:
+                p = v.reported().position
+                alt = max(-p[2], self._rtl_alt())
+                v.set_position_target(pos=np.array([0.0, 0.0, -alt]))
+                self._rtl_phase = "return"
+        elif b == PP.TAKEOFF:
+            v.takeoff(float(self.params["MIS_TAKEOFF_ALT"][0]))
+        elif b == PP.OFFBOARD:
+            if v.armed and not v.landed and self.ap.name == "ardupilot":
+                v.hold()
+
+    def _rtl_alt(self):
+        if self.ap.name == "px4":
+            return float(self.params["RTL_RETURN_ALT"][0])
+        return float(self.params["RTL_ALT"][0]) / 100.0
+
+    def _takeoff_cmd(self, p7):
+        M = mavlink
+        v = self.vehicle
+        if not v.armed:
+            self.statustext(M.MAV_SEVERITY_CRITICAL, "Takeoff denied: disarmed")
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if self.ap.name == "px4":
+            alt = float(self.params["MIS_TAKEOFF_ALT"][0])
+            if math.isfinite(p7) and p7 - self.home[2] >= 1.0:
+                alt = p7 - self.home[2]
+            self.mode = self.ap.mode("AUTO.TAKEOFF")
+            v.takeoff(alt)
+            self._send_all(self._heartbeat())
+            return M.MAV_RESULT_ACCEPTED
+        if self.mode.behaviour != PP.OFFBOARD:
+            return M.MAV_RESULT_FAILED
+        if not (math.isfinite(p7) and p7 > 0.0):
+            return M.MAV_RESULT_DENIED
+        self._guided_att = None
+        self._following_attitude = False
+        v.takeoff(p7)
+        return M.MAV_RESULT_ACCEPTED
+
+    def _set_interval(self, link, msgid, interval_us):
+        M = mavlink
+        if not (math.isfinite(msgid) and math.isfinite(interval_us)):
+            return M.MAV_RESULT_DENIED
+        mid = int(msgid)
+        if self._build(mid) is None and mid != M.MAVLINK_MSG_ID_HEARTBEAT:
+            return M.MAV_RESULT_UNSUPPORTED
+        if mid == M.MAVLINK_MSG_ID_HEARTBEAT:
+            return M.MAV_RESULT_ACCEPTED  # always 1 Hz
+        if interval_us < 0:
+            link.intervals[mid] = None
+        elif interval_us == 0:
+            hz = link.default_rates.get(mid)
+            link.intervals[mid] = None if hz is None else int(round(1e6 / hz))
+        else:
+            link.intervals[mid] = max(1, int(round(interval_us)))
+            link.next_due[mid] = int(round(self.vehicle.time * 1e6))
+        return M.MAV_RESULT_ACCEPTED
+
+    # setpoints
+
+    def _reject_setpoint(self, reason):
+        self.stats.setpoints_rejected += 1
+        self._count(reason)
+        self._statustext_limited(reason, mavlink.MAV_SEVERITY_WARNING, f"Setpoint rejected: {reason}")
+
+    def _proof_of_life(self):
+        self._last_setpoint_t = self.vehicle.time
+        self._last_setpoint_wall = time.monotonic()
+        if self.lockstep:
+            self._pending_steps += 1
+
+    def _on_attitude_target(self, link, msg):
+        mask = msg.type_mask
+        q = np.array(msg.q, dtype=float)
+        rates = np.array([msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate])
+        thrust = float(msg.thrust)
+        if not mask & AT_ATTITUDE:
+            if not np.all(np.isfinite(q)):
+                return self._reject_setpoint("non-finite quaternion")
+            if abs(np.linalg.norm(q) - 1.0) > 1e-3:
+                return self._reject_setpoint("quaternion not unit length")
+        if not mask & AT_THROTTLE:
+            if not math.isfinite(thrust):
+                return self._reject_setpoint("non-finite thrust")
+            if not 0.0 <= thrust <= 1.0:
+                return self._reject_setpoint("thrust out of range")
+        if (mask & AT_RATES) != AT_RATES and not np.all(np.isfinite(rates)):
+            return self._reject_setpoint("non-finite body rates")
+        if mask & AT_ATTITUDE and (mask & AT_RATES) == AT_RATES:
+            return self._reject_setpoint("attitude and rates both ignored")
+        if self.ap.name == "ardupilot":
+            if self.mode.behaviour != PP.OFFBOARD:
+                self.stats.setpoints_ignored += 1
+                return None
+            self._proof_of_life()
+            if not self.vehicle.armed:
+                return None
+            self._following_attitude = True
+            thrust_is_thrust = int(self.params["GUID_OPTIONS"][0]) & 8
+            if mask & AT_THROTTLE or not thrust_is_thrust:
+                up = float(self.params["PILOT_SPEED_UP"][0]) / 100.0
+                dn = float(self.params["PILOT_SPEED_DN"][0]) / 100.0
+                th = 0.5 if mask & AT_THROTTLE else thrust
+                climb = (th - 0.5) * 2.0 * (up if th >= 0.5 else dn)
+                qa = q if not mask & AT_ATTITUDE else np.array([1.0, 0.0, 0.0, 0.0])
+                self._guided_att = (qa, climb)
+                self._att_target = (qa, th, rates, mask)
+                return None
+            self._guided_att = None
+        elif not mask & AT_THROTTLE:
+            self._proof_of_life()  # a throttle-ignoring setpoint is not proof of life
+        else:
+            self.stats.setpoints_ignored += 1
+        self._att_target = (q, thrust, rates, mask)
+        if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
+            self.vehicle.set_attitude_target(
+                q, thrust, body_rates=None if (mask & AT_RATES) == AT_RATES else rates,
+                type_mask=mask)
+        return None
+
+    def _on_position_target(self, link, msg):
+        mask = msg.type_mask
+        frames = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
+                  mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
+        if msg.coordinate_frame not in frames:
+            return self._reject_setpoint("unsupported frame")
+        pos = None if mask & PT_POS else np.array([msg.x, msg.y, msg.z], dtype=float)
+        vel = None if mask & PT_VEL else np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        acc = None if mask & PT_ACC else np.array([msg.afx, msg.afy, msg.afz], dtype=float)
+        yaw = None if mask & PT_YAW else float(msg.yaw)
+        yaw_rate = None if mask & PT_YAW_RATE else float(msg.yaw_rate)
+        for name, val in (("position", pos), ("velocity", vel), ("acceleration", acc),
+                          ("yaw", yaw), ("yaw rate", yaw_rate)):
+            if val is not None and not np.all(np.isfinite(val)):
+                return self._reject_setpoint(f"non-finite {name}")
+        if pos is None and vel is None and acc is None:
+            return self._reject_setpoint("position target ignores everything")
+        if pos is not None and np.abs(pos).max() > 1e5:
+            return self._reject_setpoint("position out of range")
+        r = self._reported()
+        if msg.coordinate_frame in (mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED):
+            c, s = math.cos(r.euler[2]), math.sin(r.euler[2])
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            vel = None if vel is None else rot @ vel
+            acc = None if acc is None else rot @ acc
+            if pos is not None:
+                pos = r.position + rot @ pos
+        elif msg.coordinate_frame == mavlink.MAV_FRAME_LOCAL_OFFSET_NED and pos is not None:
+            pos = r.position + pos
+        if self.ap.name == "ardupilot" and self.mode.behaviour != PP.OFFBOARD:
+            self.stats.setpoints_ignored += 1
+            return None
+        self._proof_of_life()
+        self._guided_att = None
+        self._following_attitude = False
+        if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
+            self.vehicle.set_position_target(pos=pos, vel=vel, acc=acc, yaw=yaw, yaw_rate=yaw_rate)
+        return None
+
+    def _on_set_mode(self, link, msg):
+        if msg.target_system not in (0, self.sysid):
+            self.stats.other_target += 1
+            return
+        if self.ap.name == "px4":
+            main = (msg.custom_mode >> 16) & 0xFF
+            sub = (msg.custom_mode >> 24) & 0xFF
+            p = [msg.base_mode, main, sub]
+        else:
+            p = [msg.base_mode, msg.custom_mode, 0]
+        self._set_mode_cmd(p)
+
+    def _on_timesync(self, link, msg):
+        if msg.tc1 == 0:
+            link.mav.send(mavlink.MAVLink_timesync_message(int(time.monotonic() * 1e9), msg.ts1,
+                                                          msg.get_srcSystem(),
+                                                          msg.get_srcComponent()))
+
+    # parameters
+
+    def _encode_param(self, name):
+        value, ptype = self.params[name]
+        if ptype == PP.INT and self.ap.bytewise_params:
+            return struct.unpack("<f", struct.pack("<i", int(value)))[0], ptype
+        return float(value), ptype
+
+    def _param_value(self, link, name):
+        value, ptype = self._encode_param(name)
+        idx = self._param_names.index(name)
+        link.mav.send(mavlink.MAVLink_param_value_message(name.encode(), value, ptype,
+                                                          len(self._param_names), idx))
+
+    def _on_param_request_list(self, link, msg):
+        for name in self._param_names:
+            self._param_value(link, name)
+
+    def _on_param_request_read(self, link, msg):
+        name = msg.param_id.decode(errors="replace") if isinstance(msg.param_id, bytes) else msg.param_id
+        if msg.param_index >= 0:
+            if msg.param_index < len(self._param_names):
+                self._param_value(link, self._param_names[msg.param_index])
+            return
+        if name in self.params:
+            self._param_value(link, name)
+
+    def _on_param_set(self, link, msg):
+        name = msg.param_id.decode(errors="replace") if isinstance(msg.param_id, bytes) else msg.param_id
+        if name not in self.params:
+            self._statustext_limited("param:" + name, mavlink.MAV_SEVERITY_WARNING,
+                                     f"Unknown parameter {name}")
+            return
+        _, ptype = self.params[name]
+        raw = msg.param_value
+        if ptype == PP.INT:
+            if self.ap.bytewise_params and msg.param_type == PP.INT:
+                value = struct.unpack("<i", struct.pack("<f", raw))[0]
+            elif math.isfinite(raw):
+                value = int(round(raw))
+            else:
+                value = None
+        else:
+            value = float(raw) if math.isfinite(raw) else None
+        if value is None:
+            self._statustext_limited("param:" + name, mavlink.MAV_SEVERITY_WARNING,
+                                     f"Parameter {name}: value refused")
+        else:
+            self.params[name] = (value, ptype)
+            if name.startswith("SIM_WIND_"):
+                self._update_gcs_wind()
+        self._param_value(link, name)
+
+    def _update_gcs_wind(self):
+        spd = float(self.params["SIM_WIND_SPD"][0])
+        direction = float(self.params["SIM_WIND_DIR"][0])
+        turb = float(self.params["SIM_WIND_TURB"][0])
+        vert = float(self.params["SIM_WIND_DIR_Z"][0])
+        parts = []
+        if spd > 0.0 or vert != 0.0:
+            parts.append(W.ConstantWind(max(spd, 0.0), direction, vertical=vert))
+        if turb > 0.0:
+            parts.append(W.DrydenTurbulence(w20=turb, seed=self.vehicle.seed))
+        extra = W.CompositeWind(parts, seed=self.vehicle.seed) if parts else None
+        self.vehicle.wind = LayeredWind.over(self._base_wind, extra)
+        self.statustext(mavlink.MAV_SEVERITY_INFO,
+                        f"Wind {spd:.1f} m/s from {direction:.0f} deg, turbulence {turb:.1f}")
+
+    # missions: an empty list of every type, so ground stations connect cleanly
+
+    def _on_mission_request_list(self, link, msg):
+        link.mav.send(mavlink.MAVLink_mission_count_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), 0, getattr(msg, "mission_type", 0)))
+
+    def _on_mission_clear_all(self, link, msg):
+        link.mav.send(mavlink.MAVLink_mission_ack_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED,
+            getattr(msg, "mission_type", 0)))
+
+    def _on_mission_count(self, link, msg):
+        result = mavlink.MAV_MISSION_ACCEPTED if msg.count == 0 else mavlink.MAV_MISSION_UNSUPPORTED
+        link.mav.send(mavlink.MAVLink_mission_ack_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), result, getattr(msg, "mission_type", 0)))
+
+    def _on_mission_request(self, link, msg):
+        link.mav.send(mavlink.MAVLink_mission_ack_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_INVALID_SEQUENCE,
+            getattr(msg, "mission_type", 0)))
+
+    def _on_heartbeat(self, link, msg):
+        return None
+
+    def _on_ftp(self, link, msg):
+        """MAVLink FTP is not offered: answer every request with a NAK (file not found), so
+        clients that try it first (MAVProxy's parameter download) fall back at once."""
+        req = bytes(msg.payload)
+        if len(req) < 12:
+            return
+        seq = (req[0] | (req[1] << 8)) + 1
+        nak = bytearray(251)
+        nak[0], nak[1] = seq & 0xFF, (seq >> 8) & 0xFF
+        nak[2] = req[2]  # session
+        nak[3] = 129  # NAK
+        nak[4] = 1  # size of the error data
+        nak[5] = req[3]  # the request's opcode
+        nak[12] = 10  # FileNotFound
+        link.mav.send(mavlink.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(),
+                                                                     msg.get_srcComponent(),
+                                                                     list(nak)))
+
+    _handlers = {
+        "COMMAND_LONG": _on_command,
+        "COMMAND_INT": _on_command,
+        "SET_ATTITUDE_TARGET": _on_attitude_target,
+        "SET_POSITION_TARGET_LOCAL_NED": _on_position_target,
+        "SET_MODE": _on_set_mode,
+        "TIMESYNC": _on_timesync,
+        "PARAM_REQUEST_LIST": _on_param_request_list,
+        "PARAM_REQUEST_READ": _on_param_request_read,
+        "PARAM_SET": _on_param_set,
+        "MISSION_REQUEST_LIST": _on_mission_request_list,
+        "MISSION_CLEAR_ALL": _on_mission_clear_all,
+        "MISSION_COUNT": _on_mission_count,
+        "MISSION_REQUEST_INT": _on_mission_request,
+        "MISSION_REQUEST": _on_mission_request,
+        "HEARTBEAT": _on_heartbeat,
+        "FILE_TRANSFER_PROTOCOL": _on_ftp,
+    }
+
+
+class LayeredWind(W.Wind):
+    """The configured wind plus the ground station's SIM_WIND_* layer, without reseeding either."""
+
+    def __init__(self, base, extra):
+        self.base = base
+        self.extra = extra
+
+    @classmethod
+    def over(cls, base, extra):
+        if extra is None:
+            return base
+        if base is None:
+            return extra
+        return cls(base, extra)
+
+    def mean(self, position):
+        return self.base.mean(position) + self.extra.mean(position)
+
+    def step(self, t, dt, position, velocity):
+        v1, f1, m1 = self.base.step(t, dt, position, velocity)
+        v2, f2, m2 = self.extra.step(t, dt, position, velocity)
+        return v1 + v2, f1 + f2, m1 + m2
+
+
+def _near(x, value):
+    return math.isfinite(x) and abs(x - value) < 0.5
+
+
+def _rotmat(q):
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def read_signing_key(path):
+    """The 32-byte secret from a file holding it as 64 hex characters."""
+    with open(path, encoding="ascii") as f:
+        text = f.read().strip()
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise ValueError(f"{path}: signing key must be 64 hex characters") from None
+    if len(key) != 32:
+        raise ValueError(f"{path}: signing key must be 32 bytes (64 hex characters), got {len(key)}")
+    return key
+
