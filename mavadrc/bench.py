@@ -80,18 +80,128 @@ def control_figures():
     return fig
 
 
-def all_figures():
-    fig = control_figures()
+def _free_udp_port():
+    import socket
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def _cpu_seconds(pid):
+    """User + system CPU time of a process (Linux /proc), in seconds."""
+    import os
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _sitl_process(*extra):
+    import subprocess
+    port = _free_udp_port()
+    proc = subprocess.Popen([sys.executable, "-m", "sim", "--instance", "20", "--offboard-port",
+                             str(port), "--gcs-port", str(_free_udp_port()), *extra],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return proc, port
+
+
+def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
+    """Real-time clock accuracy and CPU load of the bundled vehicle, and a lockstep closed loop.
+
+    Both run the vehicle as its own process (``python -m sim``) and talk to it over loopback
+    MAVLink with pymavlink, as a user's script would.
+    """
+    import os
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    fig = {}
+    proc, port = _sitl_process()
     try:
-        from sim.bench import physics_figures
-    except ImportError:
-        return fig
-    fig.update(physics_figures())
+        c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+        c.wait_heartbeat(timeout=30)
+        first = c.recv_match(type="ATTITUDE", blocking=True, timeout=30)
+        wall0, boot0, cpu0 = time.monotonic(), first.time_boot_ms, _cpu_seconds(proc.pid)
+        last = first
+        while time.monotonic() - wall0 < realtime_seconds:
+            m = c.recv_match(type="ATTITUDE", blocking=True, timeout=1)
+            if m is not None:
+                last, wall1 = m, time.monotonic()
+        cpu1 = _cpu_seconds(proc.pid)
+        wall = wall1 - wall0
+        fig["sitl_realtime_clock_error_pct"] = abs((last.time_boot_ms - boot0) / 1e3 - wall) / wall * 100
+        fig["sitl_realtime_cpu_pct_of_core"] = (cpu1 - cpu0) / wall * 100
+        c.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+    proc, port = _sitl_process("--lockstep", "--lockstep-rate", "100")
+    try:
+        fig["sitl_lockstep_x_realtime"] = _lockstep_hover(mavutil, port, lockstep_seconds)
+    finally:
+        proc.terminate()
+        proc.wait(10)
     return fig
 
 
-def main(as_json=False, out=sys.stdout):
-    fig = all_figures()
+def _lockstep_hover(mavutil, port, seconds):
+    """A 100 Hz LADRC position loop over pymavlink against a lockstep vehicle; x real time."""
+    M = mavutil.mavlink
+    c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    c.wait_heartbeat(timeout=30)
+    odo = M.MAVLINK_MSG_ID_ODOMETRY
+
+    def command(cmd, *p):
+        p = list(p) + [0.0] * (7 - len(p))
+        c.mav.command_long_send(c.target_system, 1, cmd, 0, *p)
+        c.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
+
+    for mid in (M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+                M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
+        command(M.MAV_CMD_SET_MESSAGE_INTERVAL, mid, -1)
+    command(M.MAV_CMD_SET_MESSAGE_INTERVAL, odo, 10_000)
+    ctrl = PositionController("ladrc", h=0.01, hover_thrust=0.5, wc=2.0, wo=10.0)
+    ref = np.array([0.0, 0.0, -1.0])
+    state = {"t": -1}
+
+    def step():
+        while True:
+            m = c.recv_match(type="ODOMETRY", blocking=True, timeout=5)
+            if m.time_usec > state["t"]:
+                break
+        state["t"] = m.time_usec
+        q, thrust = ctrl.update([m.x, m.y, m.z], None, ref)
+        c.mav.set_attitude_target_send(0, c.target_system, 1, 7, list(map(float, q)), 0, 0, 0,
+                                     thrust)
+
+    c.mav.set_attitude_target_send(0, c.target_system, 1, 7, [1.0, 0, 0, 0], 0, 0, 0, 0.0)
+    step()
+    command(M.MAV_CMD_DO_SET_MODE, 1, 6)
+    command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    for _ in range(100):  # the vehicle process loads its compiled kernels on first use
+        step()
+    n = int(seconds * 100)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        step()
+    wall = time.perf_counter() - t0
+    c.close()
+    return n * 0.01 / wall
+
+
+def all_figures(sitl=True):
+    fig = control_figures()
+    from sim.bench import physics_figures
+    fig.update(physics_figures())
+    if sitl:
+        fig.update(sitl_figures())
+    return fig
+
+
+def main(as_json=False, out=sys.stdout, sitl=True):
+    fig = all_figures(sitl)
     if as_json:
         out.write(json.dumps(fig) + "\n")
         return 0
