@@ -67,7 +67,10 @@ def physics_figures(quick=False):
       stepped 10 ms at a time);
     - ``sim_speed_x_realtime``: simulated over wall seconds of a SimVehicle flying a position
       hold (position loop at 100 Hz, inner loop at 1 kHz, no wind);
-    - ``batch_vehicle_steps_per_s``: BatchVehicles with 1000 Crazyflies in attitude mode;
+    - ``batch_physics_vehicle_steps_per_s``: the physics alone, 1000 vehicles in parallel, 10
+      steps per call;
+    - ``batch_vehicle_steps_per_s``: BatchVehicles with 1000 Crazyflies in attitude mode
+      (physics and firmware);
     - ``rotorpy_step_us`` and ``ratio_rotorpy_over_ours`` (rotorpy step over physics_step_us)
       when rotorpy is installed, else NaN.
     """
@@ -96,6 +99,11 @@ def physics_figures(quick=False):
     fig["sim_speed_x_realtime"] = sim_s / _median_s(lambda: f.step(sim_s), reps)
 
     nb = 1000
+    X = np.tile(x, (nb, 1))
+    cmds = np.tile(cmd, (nb, 1))
+    fig["batch_physics_vehicle_steps_per_s"] = nb * 10 / _median_s(
+        lambda: phys.step_batch(X, cmds, P, z3, z3, z3, 0.001, 10), reps)
+
     b = BatchVehicles(nb, "crazyflie", positions=(0.0, 0.0, -2.0))
     b.arm()
     b.set_attitude_targets([1.0, 0.0, 0.0, 0.0], b.hover_thrust)
