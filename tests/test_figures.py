@@ -1,0 +1,258 @@
+"""Figures from a synthetic flight record and a synthetic .tlog (mavadrc.figures)."""
+
+import json
+import math
+import os
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: speak MAVLink 2
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from matplotlib.image import imread  # noqa: E402
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+from mavadrc import figures, record  # noqa: E402
+
+N = 400
+DT = 0.02
+R, ALT, OMEGA = 5.0, 10.0, 2 * math.pi / 8.0
+T_US0 = 1_700_000_000_000_000  # tlog stamps: Unix time in microseconds
+
+
+def _expected_px(name):
+    w, h = figures.SIZES[name]
+    return round(h * figures.DPI), round(w * figures.DPI)
+
+
+def _check_png(path, size_name):
+    assert path.is_file(), path
+    assert path.stat().st_size > 10_000, (path, path.stat().st_size)
+    img = imread(path)
+    assert img.shape[:2] == _expected_px(size_name), (path, img.shape)
+    assert img.shape[2] in (3, 4)
+    assert float(np.std(img[..., :3])) > 0.01  # not a blank canvas
+
+
+def _circle(t):
+    """Reference circle and a vehicle off it by a known error, NED."""
+    ref = np.column_stack([R * np.cos(OMEGA * t), R * np.sin(OMEGA * t), np.full_like(t, -ALT)])
+    err = np.column_stack([0.1 * np.sin(3 * t), 0.05 * np.cos(2 * t), np.full_like(t, 0.02)])
+    return ref, ref + err, err
+
+
+def _write_record(folder, controller="ADRC"):
+    rec = record.FlightRecord(folder, mission_text="name: circle\n")
+    t = np.arange(N) * DT
+    ref, pos, err = _circle(t)
+    for i, ti in enumerate(t):
+        yaw = OMEGA * ti + math.pi / 2
+        q = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+        cmd = [2.0 * math.sin(ti), -2.5 * math.cos(ti), -0.5]
+        applied = [min(max(c, -2.0), 2.0) for c in cmd]  # the tilt limit clips the east axis
+        dist = [0.3 * math.sin(0.5 * ti), 0.2, -0.1 * math.cos(ti)]
+        z3 = [d + 0.01 for d in dist] if controller != "PD" else [math.nan] * 3
+        row = {"t": float(ti), "phase": "takeoff" if i < 50 else ("land" if i > 350 else "mission"),
+               "ref_yaw": float(yaw), "yaw": float(yaw), "thrust": 0.5 + 0.05 * math.sin(ti),
+               "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3]}
+        for k, a in enumerate(record.AXES):
+            row.update({f"ref_{a}": float(ref[i, k]), f"pos_{a}": float(pos[i, k]),
+                        f"ref_v{a}": 0.0, f"ref_a{a}": 0.0, f"vel_{a}": 0.0,
+                        f"z1_{a}": float(pos[i, k]), f"z2_{a}": 0.0, f"z3_{a}": z3[k],
+                        f"v1_{a}": float(ref[i, k]), f"v2_{a}": 0.0,
+                        f"acc_cmd_{a}": cmd[k], f"acc_applied_{a}": applied[k],
+                        f"true_dist_{a}": dist[k]})
+        rec.table.row([row[c] for c in record.COLUMNS])
+    summary = {"controller": controller, "mission": "circle", "duration_s": float(t[-1]),
+               "landed": True, **record.error_figures(t, ref, pos, settle_s=1.0)}
+    rec.write_summary(summary)
+    rec.close()
+    return err
+
+
+@pytest.fixture(scope="module")
+def record_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("flight")
+    _write_record(folder)
+    return folder
+
+
+def test_plot_record_writes_four_figures(record_dir, tmp_path):
+    paths = figures.plot_record(record_dir, out=tmp_path / "figs")
+    names = sorted(p.name for p in paths)
+    assert names == ["commands.png", "disturbance.png", "error.png", "path3d.png"]
+    for p in paths:
+        _check_png(p, p.stem)
+
+
+def test_plot_record_pd_has_no_observer(tmp_path):
+    _write_record(tmp_path, controller="PD")
+    table = record.read_table(tmp_path / "controller.csv")
+    assert np.isnan(table["z3_x"]).all()
+    paths = figures.plot_record(tmp_path)  # into the record folder itself
+    assert {p.parent for p in paths} == {tmp_path}
+    _check_png(tmp_path / "disturbance.png", "disturbance")
+    assert len(paths) == 4
+
+
+def test_quat_to_euler_deg():
+    r, p, y = np.radians([10.0, -20.0, 170.0])
+    q = np.zeros(4)
+    from mavadrc.control.geometry import euler_to_quat
+
+    euler_to_quat(r, p, y, q)
+    np.testing.assert_allclose(figures.quat_to_euler_deg(q[None, :])[0], [10.0, -20.0, 170.0],
+                               atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------- tlog
+
+def _write_tlog(path, with_position=True, companion=True, target=False, same_stamp=False):
+    """Vehicle (1, 1) and companion (255, 190) frames; returns what was written.
+
+    ``target`` adds the vehicle's POSITION_TARGET_LOCAL_NED (the reference circle).
+    """
+    veh = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    w = record.TlogWriter(path)
+    t = np.arange(200) * DT
+    ref, pos, _ = _circle(t)
+    written = {"t": [], "pos": [], "ref": [], "thrust": [], "q": [], "z3": [], "truth": []}
+    k = 0
+
+    def put(mav, msg, ti):
+        nonlocal k
+        t_us = T_US0 + (0 if same_stamp else int(round(ti * 1e6)) + k)  # + 1 us per frame
+        w.write(msg.pack(mav), t_us=t_us)
+        k += 1
+        return (t_us - T_US0) * 1e-6
+
+    put(veh, mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3), 0.0)
+    for i, ti in enumerate(t):
+        ms = int(ti * 1000)
+        if with_position:
+            written["t"].append(put(
+                veh, mavlink.MAVLink_local_position_ned_message(ms, *pos[i], 0.1, 0.2, 0.3), ti))
+            written["pos"].append(pos[i])
+        if target:
+            put(veh, mavlink.MAVLink_position_target_local_ned_message(
+                ms, 1, 0b110111111000, *ref[i], 0, 0, 0, 0, 0, 0, 0, 0), ti)
+            written["ref"].append(ref[i])
+        if not companion:
+            continue
+        yaw = OMEGA * ti
+        q = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+        thrust = 0.5 + 0.1 * math.sin(ti)
+        put(gcs, mavlink.MAVLink_set_attitude_target_message(ms, 1, 1, 0b00000111, q, 0, 0, 0,
+                                                             thrust), ti)
+        written["q"].append(q)
+        written["thrust"].append(thrust)
+        z3 = [0.3 * math.sin(ti), -0.2, 0.1 * math.cos(ti)]
+        for a, v in zip(record.AXES, z3):
+            put(gcs, mavlink.MAVLink_named_value_float_message(ms, f"z3_{a}".encode(), v), ti)
+        written["z3"].append(z3)
+        truth = [0.3 * math.sin(ti) - 0.01, -0.19, 0.1 * math.cos(ti)]
+        put(veh, mavlink.MAVLink_debug_vect_message(b"TRUE_DIST", ms * 1000, *truth), ti)
+        written["truth"].append(truth)
+    w.close()
+    written["frames"] = w.frames
+    return {k: np.asarray(v) if k != "frames" else v for k, v in written.items()}
+
+
+@pytest.fixture(scope="module")
+def tlog(tmp_path_factory):
+    path = tmp_path_factory.mktemp("tlog") / "flight.tlog"
+    return path, _write_tlog(path)
+
+
+def test_tlog_series_reads_back_what_was_written(tlog):
+    path, wr = tlog
+    s = figures.tlog_series(path)
+    f32 = np.float32
+    assert int(s["vehicle"]) == 1
+    assert float(s["t0"]) == pytest.approx(T_US0 * 1e-6)
+    # first message: the heartbeat at T_US0; float64 Unix seconds resolve ~0.24 us
+    np.testing.assert_allclose(s["pos_t"], wr["t"], rtol=0, atol=1e-6)
+    for k, a in enumerate(record.AXES):
+        np.testing.assert_array_equal(s[f"pos_{a}"], wr["pos"][:, k].astype(f32))
+        np.testing.assert_array_equal(s[f"z3_{a}"], wr["z3"][:, k].astype(f32))
+        np.testing.assert_array_equal(s[f"true_dist_{a}"], wr["truth"][:, k].astype(f32))
+        assert s[f"z3_{a}_t"].size == len(wr["t"])
+    np.testing.assert_array_equal(s["vel_y"], np.full(len(wr["t"]), f32(0.2)))
+    np.testing.assert_array_equal(s["thrust"], wr["thrust"].astype(f32))
+    for k, c in enumerate("wxyz"):
+        np.testing.assert_array_equal(s[f"q_{c}"], wr["q"][:, k].astype(f32))
+    assert s["ref_t"].size == 0  # the companion sent attitude targets only
+
+
+def test_mavutil_reads_every_frame(tlog):
+    """mavlogdump.py's way of reading: every frame written comes back, none as bad data."""
+    path, wr = tlog
+    conn = mavutil.mavlink_connection(str(path))
+    types = {}
+    while (m := conn.recv_match(blocking=False)) is not None:
+        types[m.get_type()] = types.get(m.get_type(), 0) + 1
+    conn.close()
+    assert "BAD_DATA" not in types
+    assert sum(types.values()) == wr["frames"] == 1 + 200 * 6
+    assert types["LOCAL_POSITION_NED"] == types["SET_ATTITUDE_TARGET"] == 200
+    assert types["NAMED_VALUE_FLOAT"] == 600
+
+
+def test_plot_tlog_and_main(tlog, tmp_path, capsys):
+    path, _ = tlog
+    paths = figures.plot_tlog(path, tmp_path)
+    # no position target in the log: no error figure, vehicle path only
+    assert sorted(p.name for p in paths) == ["commands.png", "disturbance.png", "path3d.png"]
+    _check_png(tmp_path / "path3d.png", "path3d")
+    _check_png(tmp_path / "disturbance.png", "disturbance")
+    _check_png(tmp_path / "commands.png", "commands_attitude")
+    out2 = tmp_path / "via_main"
+    assert figures.main(path, out2) == 0
+    printed = capsys.readouterr().out.split()
+    assert sorted(printed) == sorted(str(out2 / p.name) for p in paths)
+
+
+def test_plot_tlog_with_a_position_target_draws_the_error(tmp_path):
+    path = tmp_path / "px4.tlog"
+    wr = _write_tlog(path, companion=False, target=True)
+    s = figures.tlog_series(path)
+    for k, a in enumerate(record.AXES):
+        np.testing.assert_array_equal(s[f"ref_{a}"], wr["ref"][:, k].astype(np.float32))
+    assert s["att_t"].size == 0 and s["z3_x"].size == 0
+    paths = figures.plot_tlog(path)  # beside the tlog
+    assert sorted(p.name for p in paths) == ["error.png", "path3d.png"]
+    _check_png(tmp_path / "error.png", "error")
+
+
+def test_plot_tlog_refuses_a_log_without_positions(tmp_path):
+    path = tmp_path / "hb.tlog"
+    veh = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    w = record.TlogWriter(path)
+    for i in range(5):
+        w.write(mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3).pack(veh), T_US0 + i)
+    w.close()
+    with pytest.raises(ValueError, match=r"no LOCAL_POSITION_NED in .*hb\.tlog"):
+        figures.plot_tlog(path, tmp_path)
+    assert not list(tmp_path.glob("*.png"))
+
+
+def test_tlog_time_falls_back_to_time_boot_ms(tmp_path):
+    path = tmp_path / "flat.tlog"
+    _write_tlog(path, same_stamp=True)
+    s = figures.tlog_series(path)
+    np.testing.assert_allclose(s["pos_t"], np.floor(np.arange(200) * DT * 1000) / 1000, atol=1e-9)
+
+
+def test_main_rejects_other_targets(tmp_path):
+    with pytest.raises(SystemExit, match="does not exist"):
+        figures.main(tmp_path / "nope")
+    (tmp_path / "notes.txt").write_text("hi")
+    with pytest.raises(SystemExit, match="neither a flight record folder nor a .tlog"):
+        figures.main(tmp_path / "notes.txt")
+    with pytest.raises(SystemExit, match="not a flight record"):
+        figures.main(tmp_path)
+    summary = json.dumps({"controller": "ADRC"})
+    (tmp_path / "summary.json").write_text(summary)
+    with pytest.raises(SystemExit, match="not a flight record"):
+        figures.main(tmp_path)
