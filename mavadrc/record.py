@@ -1,0 +1,146 @@
+"""The flight record: one folder per flight, written as the flight goes.
+
+    flight.tlog      every MAVLink frame both ways (8-byte big-endian Unix time in us + frame)
+    controller.csv   one row per controller step (columns: :data:`COLUMNS`)
+    summary.json     controller, mission, duration and the error figures
+    mission.yaml     the mission as flown
+    *.png            figures (see :mod:`mavadrc.figures`)
+
+Both the tlog and the table are flushed as they go, so a killed process leaves readable files.
+"""
+
+import csv
+import json
+import math
+import os
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+
+#: controller.csv columns, in order.  NED metres, seconds from the start of the mission.
+COLUMNS = (
+    ["t", "phase"]
+    + [f"ref_{a}" for a in AXES]
+    + [f"ref_v{a}" for a in AXES]
+    + [f"ref_a{a}" for a in AXES]
+    + ["ref_yaw"]
+    + [f"pos_{a}" for a in AXES]
+    + [f"vel_{a}" for a in AXES]
+    + ["yaw"]
+    + [f"z{i}_{a}" for a in AXES for i in (1, 2, 3)]
+    + [f"v{i}_{a}" for a in AXES for i in (1, 2)]
+    + [f"acc_cmd_{a}" for a in AXES]
+    + [f"acc_applied_{a}" for a in AXES]
+    + ["q_w", "q_x", "q_y", "q_z", "thrust"]
+    + [f"true_dist_{a}" for a in AXES]
+)
+
+
+class TlogWriter:
+    """Writes a .tlog: each record is the Unix time in microseconds (big-endian u64) + a frame."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self._f = open(self.path, "wb")
+        self.frames = 0
+
+    def write(self, frame, t_us=None):
+        if self._f is None:
+            return
+        if t_us is None:
+            t_us = int(time.time() * 1e6)
+        self._f.write(struct.pack(">Q", t_us) + bytes(frame))
+        self._f.flush()
+        self.frames += 1
+
+    def close(self):
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+
+class TableWriter:
+    """CSV of the controller internals; flushed every ``flush_every`` rows and on close."""
+
+    def __init__(self, path, flush_every=25):
+        self.path = Path(path)
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(COLUMNS)
+        self._f.flush()
+        self._n = 0
+        self.flush_every = flush_every
+
+    def row(self, values):
+        self._w.writerow(["" if isinstance(v, float) and math.isnan(v) else
+                          (f"{v:.9g}" if isinstance(v, float) else v) for v in values])
+        self._n += 1
+        if self._n % self.flush_every == 0:
+            self._f.flush()
+
+    def close(self):
+        if self._f is not None:
+            self._f.flush()
+            self._f.close()
+            self._f = None
+
+
+def read_table(path):
+    """controller.csv as a dict of numpy arrays (``phase`` stays a list of strings)."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    out = {}
+    for j, name in enumerate(header):
+        col = [r[j] if j < len(r) else "" for r in body]
+        if name == "phase":
+            out[name] = col
+        else:
+            out[name] = np.array([float(v) if v != "" else math.nan for v in col])
+    return out
+
+
+def error_figures(t, ref, pos, settle_s=0.0):
+    """RMS and max position error, 3-D and per axis, over t >= settle_s.
+
+    ``ref`` and ``pos`` are (N, 3).  Returns the keys of ``summary.json``.
+    """
+    t = np.asarray(t, dtype=float)
+    keep = t >= settle_s
+    err = np.asarray(pos, dtype=float)[keep] - np.asarray(ref, dtype=float)[keep]
+    if err.shape[0] == 0:
+        nan3 = [math.nan] * 3
+        return {"rms_error_m": math.nan, "max_error_m": math.nan, "rms_error_xyz_m": nan3,
+                "max_error_xyz_m": nan3}
+    norm = np.linalg.norm(err, axis=1)
+    return {
+        "rms_error_m": float(np.sqrt(np.mean(norm**2))),
+        "max_error_m": float(norm.max()),
+        "rms_error_xyz_m": [float(v) for v in np.sqrt(np.mean(err**2, axis=0))],
+        "max_error_xyz_m": [float(v) for v in np.abs(err).max(axis=0)],
+    }
+
+
+class FlightRecord:
+    """Creates the folder and its writers; ``finish(summary)`` writes summary.json."""
+
+    def __init__(self, folder, mission_text=None):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.tlog = TlogWriter(self.folder / "flight.tlog")
+        self.table = TableWriter(self.folder / "controller.csv")
+        if mission_text is not None:
+            (self.folder / "mission.yaml").write_text(mission_text)
+
+    def write_summary(self, summary):
+        tmp = self.folder / "summary.json.tmp"
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+        os.replace(tmp, self.folder / "summary.json")
+
+    def close(self):
+        self.tlog.close()
+        self.table.close()
