@@ -36,6 +36,10 @@ def add_arguments(p):
                    help="UDP port the offboard link sends to (default 14540 + instance)")
     p.add_argument("--gcs-port", type=int, default=None,
                    help="UDP port the ground-station link sends to (default 14550)")
+    p.add_argument("--bind-offboard", type=int, default=None,
+                   help="local UDP port of the offboard link (default 14580 + instance; 0: any)")
+    p.add_argument("--bind-gcs", type=int, default=None,
+                   help="local UDP port of the ground-station link (default 18570 + instance; 0: any)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after this many wall-clock seconds (default: run until Ctrl-C)")
     p.add_argument("-v", "--verbose", action="store_true", help="log every STATUSTEXT")
@@ -62,7 +66,8 @@ def make_server(args):
     key = read_signing_key(args.signing_key) if args.signing_key else None
     return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
-                      offboard_port=args.offboard_port, gcs_port=args.gcs_port)
+                      offboard_port=args.offboard_port, gcs_port=args.gcs_port,
+                      bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs)
 
 
 def run(args):

@@ -563,6 +563,12 @@ class SitlServer:
                                                  lon, int(round(alt * 1000)), 80, 120,
                                                  int(round(math.hypot(vel[0], vel[1]) * 100)),
                                                  cog, 12)
+        if mid == M.MAVLINK_MSG_ID_DEBUG_VECT:
+            # the simulator's truth, for comparing observer estimates: the acceleration (NED,
+            # m/s^2) the environment adds beyond thrust and gravity
+            d = v.true_disturbance()
+            return M.MAVLink_debug_vect_message(b"TRUE_DIST", int(round(v.time * 1e6)),
+                                                float(d[0]), float(d[1]), float(d[2]))
         if mid == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return M.MAVLink_autopilot_version_message(
                 self.ap.capabilities, self.ap.flight_sw_version, 0, 0, 1, b"mavadrc\0",
@@ -1020,6 +1026,13 @@ class SitlServer:
     def _on_heartbeat(self, link, msg):
         return None
 
+    def _on_named_value(self, link, msg):
+        """Forward a companion's named values to the other links (as PX4's forwarding does), so
+        a ground station can plot, e.g., the observers' disturbance estimates live."""
+        for other in self.links:
+            if other is not link:
+                other.mav.send(msg)
+
     def _on_ftp(self, link, msg):
         """MAVLink FTP is not offered: answer every request with a NAK (file not found), so
         clients that try it first (MAVProxy's parameter download) fall back at once."""
@@ -1055,6 +1068,7 @@ class SitlServer:
         "MISSION_REQUEST": _on_mission_request,
         "HEARTBEAT": _on_heartbeat,
         "FILE_TRANSFER_PROTOCOL": _on_ftp,
+        "NAMED_VALUE_FLOAT": _on_named_value,
     }
 
 

@@ -1,0 +1,521 @@
+"""`mavadrc fly`: fly a mission over MAVLink with the chosen position controller.
+
+One loop, paced by the vehicle's own LOCAL_POSITION_NED stream: each new sample is one control
+step (the reference is taken at the vehicle's time_boot_ms), and each step sends exactly one
+SET_ATTITUDE_TARGET.  That is what makes lockstep work: the bundled vehicle advances one period
+per setpoint.
+
+Sequence.  PX4: stream idle setpoints, OFFBOARD, arm.  ArduPilot: GUIDED_NOGPS (thrust must mean
+thrust: GUID_OPTIONS bit 3), arm.  Then spool up on the ground, fly the mission from the ground
+(takeoff and landing are part of the trajectory), cut thrust on touchdown and disarm.
+
+Safety.  Stale telemetry: level-hover setpoints, then the autopilot's land mode.  Geofence,
+altitude or speed breach: land mode.  Ctrl-C: hold, then land mode, and wait for the landing.
+Non-finite setpoints are never sent.  Tilt and thrust limits are applied in the position
+controller, whose observers are fed the limited commands.
+"""
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .control import PositionController
+from .link import M, result_name
+from .record import error_figures
+
+PX4_OFFBOARD = (6, 0)
+PX4_HOLD = (4, 3)
+AP_GUIDED_NOGPS = 20
+AP_LOITER = 5
+TRUE_DIST = "TRUE_DIST"
+
+
+class FlightError(RuntimeError):
+    """The flight could not start or go on; the message says why, in the vehicle's words."""
+
+
+@dataclass
+class Sample:
+    t: float  # vehicle time, s
+    pos: np.ndarray
+    vel: np.ndarray
+
+
+@dataclass
+class FlightResult:
+    summary: dict
+    folder: object
+    texts: list = field(default_factory=list)
+
+
+def default_gains(kind):
+    """Position-loop gains that suit the bundled vehicles (per axis x, y, z)."""
+    if kind == "ladrc":
+        return {"wc": (2.5, 2.5, 3.0), "wo": (12.5, 12.5, 15.0)}
+    if kind == "adrc":
+        # The mission's trajectory comes with exact derivatives, so the TD (which would add lag
+        # to a moving reference) is off unless the mission asks for it (td: true).
+        return {"td": False, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0), "r": (8.0, 8.0, 8.0),
+                "c": (1.0, 1.0, 1.0), "delta": (0.05, 0.05, 0.05)}
+    return {"wc": (2.5, 2.5, 3.0)}
+
+
+def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None):
+    kind = kind or spec.kind
+    gains = dict(default_gains(kind)) if kind != spec.kind or not spec.gains else {}
+    if kind == spec.kind:
+        gains.update(spec.gains)
+    if kind == "pd" and "kp" in gains and "wc" in gains:
+        gains.pop("wc")
+    if kind == "adrc":
+        # bandwidth shorthand: NLSEF fhan(e1, c e2, r, h1) is linear near zero with kp = 1/h1^2,
+        # kd = 2c/h1, so h1 = 1/wc; the NLESO gains are those of a triple pole at -wo in fal's
+        # linear zone (|e| < delta)
+        wc = gains.pop("wc", None)
+        if wc is not None:
+            gains.setdefault("h1", tuple(1.0 / w for w in wc))
+        wo = gains.pop("wo", None)
+        if wo is not None:
+            gains.setdefault("beta", tuple((3.0 * w, 3.0 * w * w, w ** 3) for w in wo))
+    accel_max = gains.pop("accel_max", None)
+    if accel_max is not None:
+        gains["u_min"] = tuple(-a for a in accel_max)
+        gains["u_max"] = tuple(accel_max)
+    thrust = {"hover_thrust": hover_thrust} if hover_thrust is not None else \
+        {"mass": mass, "max_thrust": max_thrust}
+    return PositionController(kind, h=1.0 / spec.rate_hz, tilt_max=math.radians(spec.tilt_max_deg),
+                              thrust_min=spec.thrust_min, thrust_max=spec.thrust_max, **thrust,
+                              **gains)
+
+
+def level_quat(yaw):
+    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
+
+
+class Flight:
+    """One flight of a mission over a :class:`~mavadrc.link.Link`."""
+
+    SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
+    CUT_S = 0.5  # thrust ramp down after touchdown
+
+    def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
+                 out=sys.stdout, max_wall_s=None):
+        self.m = mission
+        self.link = link
+        self.rec = record
+        self.kind = kind or mission.controller.kind
+        self.hover = hover_thrust if hover_thrust is not None else mission.hover_thrust
+        self.out = out
+        self.progress = progress
+        self.max_wall_s = max_wall_s
+        self.texts = []
+        self.phase = "connect"
+        self.last = None  # latest Sample
+        self.yaw = 0.0
+        self.landed_state = None
+        self.true_dist = np.full(3, math.nan)
+        self.reason = None
+        self.samples = 0
+        self.missed = 0
+        self.steps = 0
+        self._t_prev = None
+        self.rows_t, self.rows_ref, self.rows_pos = [], [], []
+        self.ctrl = None
+        self.traj = None
+        self.phases = []
+        self._phase_t0 = None
+        self._last_print = 0.0
+        self._last_named = -1.0
+        self._last_sample_wall = None
+        self._setpoint = (level_quat(0.0), 0.0)
+
+    # --- reporting -----------------------------------------------------------------------------
+
+    def say(self, text):
+        if self.progress:
+            self.out.write("\r\033[K" if self.out.isatty() else "")
+        self.out.write(text + "\n")
+        self.out.flush()
+
+    def on_text(self, severity, text):
+        self.texts.append(text)
+        self.say(f"  vehicle: {text}")
+
+    # --- the loop ------------------------------------------------------------------------------
+
+    def run(self):
+        link = self.link
+        link.on_text = self.on_text
+        hb = link.wait_heartbeat()
+        self.say(f"connected to system {link.target_system} ({link.autopilot}, "
+                 f"mode {hb.custom_mode:#x}) on {link.url}")
+        if self.hover is None:
+            name = "MPC_THR_HOVER" if link.autopilot == "px4" else "MOT_THST_HOVER"
+            self.hover = float(link.param_read(name))
+            self.say(f"hover thrust {self.hover:.3f} from the vehicle's {name}")
+        self.ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind)
+        self.ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))  # compile the kernels now
+        self.ctrl.reset()
+        self.h = 1.0 / self.m.controller.rate_hz
+        self._request_streams()
+        wall0 = time.monotonic()
+        self.phase = "prearm"
+        try:
+            while self.phase != "done":
+                msg = link.recv(0.02)
+                if msg is not None:
+                    self._dispatch(msg)
+                self._watch(time.monotonic())
+                if self.max_wall_s is not None and time.monotonic() - wall0 > self.max_wall_s:
+                    raise FlightError(f"the flight took longer than {self.max_wall_s:.0f} s")
+        except KeyboardInterrupt:
+            self.say("interrupted: hold, then land")
+            self._abort_land("interrupted by the user", hold_first=True)
+            try:
+                self._wait_landed()
+            except KeyboardInterrupt:
+                self.say("second interrupt: leaving the vehicle in its land mode")
+        return self._finish()
+
+    def _request_streams(self):
+        rate = self.m.controller.rate_hz
+        L = self.link
+        L.set_rate(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, rate)
+        L.set_rate(M.MAVLINK_MSG_ID_ATTITUDE, rate)
+        L.set_rate(M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5)
+        L.set_rate(M.MAVLINK_MSG_ID_DEBUG_VECT, rate)  # the bundled vehicle's true disturbance
+        for mid in (M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                    M.MAVLINK_MSG_ID_ODOMETRY):
+            L.set_rate(mid, 0)  # not used: spare the link
+
+    def _dispatch(self, msg):
+        t = msg.get_type()
+        if t == "LOCAL_POSITION_NED":
+            s = Sample(msg.time_boot_ms / 1000.0, np.array([msg.x, msg.y, msg.z]),
+                       np.array([msg.vx, msg.vy, msg.vz]))
+            if self.last is not None and s.t <= self.last.t:
+                return  # a repeat or an old sample
+            if self.last is not None and s.t - self.last.t > 2.5 * self.h:
+                self.missed += int(round((s.t - self.last.t) / self.h)) - 1
+            self.last = s
+            self.samples += 1
+            self._last_sample_wall = time.monotonic()
+            self._step(s)
+        elif t == "ATTITUDE":
+            self.yaw = msg.yaw
+        elif t == "EXTENDED_SYS_STATE":
+            self.landed_state = msg.landed_state
+        elif t == "DEBUG_VECT" and msg.name == TRUE_DIST:
+            self.true_dist = np.array([msg.x, msg.y, msg.z])
+
+    def _send(self, t, q, thrust):
+        self._setpoint = (q, thrust)
+        self.link.attitude_target(t * 1000.0, q, thrust)
+        self._last_send_wall = time.monotonic()
+
+    # --- phases --------------------------------------------------------------------------------
+
+    def _step(self, s):
+        ph = self.phase
+        if ph in ("prearm", "mode", "arming", "disarming", "landing"):
+            self._send(s.t, level_quat(self.yaw), 0.0 if ph != "landing" else self._setpoint[1])
+            if ph == "prearm":
+                self._prearm(s)
+            elif ph == "mode":
+                self._mode(s)
+            elif ph == "arming":
+                self._arming(s)
+            elif ph == "disarming":
+                self._disarming(s)
+            elif ph == "landing":
+                self._landing(s)
+        elif ph == "spoolup":
+            k = min(1.0, (s.t - self._phase_t0) / self.SPOOL_S)
+            self._send(s.t, level_quat(self.yaw), 0.8 * self.hover * k)
+            if k >= 1.0:
+                self._start_mission(s)
+        elif ph == "mission":
+            self._mission_step(s)
+        elif ph == "touchdown":
+            k = max(0.0, 1.0 - (s.t - self._phase_t0) / self.CUT_S)
+            self._send(s.t, level_quat(self.yaw), self._cut_from * k)
+            on_ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+            if k <= 0.0 and (on_ground or s.t - self._phase_t0 > self.CUT_S + 3.0):
+                self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+                self._enter("disarming", s)
+
+    def _enter(self, phase, s):
+        self.phase = phase
+        self._phase_t0 = s.t if s is not None else None
+        self._cmd_sent_wall = time.monotonic()
+        self._tries = 0
+
+    def _prearm(self, s):
+        if self._phase_t0 is None:
+            self._phase_t0 = s.t
+            self.origin = s.pos.copy()
+            self.traj, self.phases = self.m.build_trajectory(self.origin)
+            return
+        if s.t - self._phase_t0 < 0.3:  # setpoints must be streaming before OFFBOARD
+            return
+        if self.link.autopilot == "ardupilot":
+            self._check_guid_options()
+        self._request_mode()
+        self._enter("mode", s)
+
+    def _request_mode(self):
+        if self.link.autopilot == "px4":
+            self.link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_OFFBOARD)
+        else:
+            self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
+
+    def _check_guid_options(self):
+        opts = int(self.link.param_read("GUID_OPTIONS", idle=self._keepalive))
+        if opts & 8:
+            return
+        if not self.m.safety.set_guid_options:
+            raise FlightError(
+                "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust would be "
+                "read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the vehicle, or put "
+                "'set_guid_options: true' under safety: in the mission to let mavadrc set it")
+        got = int(self.link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32,
+                                      idle=self._keepalive))
+        if not got & 8:
+            raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
+        self.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
+
+    def _keepalive(self):
+        """While waiting for a parameter, keep the setpoint stream (and a lockstep clock) going."""
+        if self.last is not None and self.link.conn is not None:
+            now = time.monotonic()
+            if now - getattr(self, "_ka", 0.0) >= self.h:
+                self._ka = now
+                self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), 0.0)
+
+    def _retry(self, resend, what):
+        ack_wait = 1.0
+        if time.monotonic() - self._cmd_sent_wall > ack_wait:
+            self._tries += 1
+            if self._tries >= 3:
+                raise FlightError(f"{what}: no answer from the vehicle after 3 tries")
+            self._cmd_sent_wall = time.monotonic()
+            resend()
+
+    def _mode(self, s):
+        ack = self.link.acks.get(M.MAV_CMD_DO_SET_MODE)
+        if ack is None:
+            return self._retry(self._request_mode, "mode change")
+        if ack.result == M.MAV_RESULT_ACCEPTED:
+            self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            return self._enter("arming", s)
+        if ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._tries < 3:
+            self._tries += 1
+            self.link.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
+            self._cmd_sent_wall = time.monotonic()
+            return self._request_mode()
+        mode = "OFFBOARD" if self.link.autopilot == "px4" else "GUIDED_NOGPS"
+        raise FlightError(f"the vehicle refused {mode}: {result_name(ack.result)}")
+
+    def _arming(self, s):
+        ack = self.link.acks.get(M.MAV_CMD_COMPONENT_ARM_DISARM)
+        if ack is None:
+            return self._retry(lambda: self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arming")
+        if ack.result != M.MAV_RESULT_ACCEPTED:
+            raise FlightError(f"the vehicle refused to arm: {result_name(ack.result)}"
+                              + (f" ({self.texts[-1]})" if self.texts else ""))
+        self.say("armed; spooling up")
+        self._enter("spoolup", s)
+
+    def _start_mission(self, s):
+        self.ctrl.reset(s.pos)
+        self._mission_t0 = s.t
+        self.say(f"flying {self.m.name!r} with {self.kind} ({self.traj.duration:.1f} s)")
+        self._enter("mission", s)
+
+    def _mission_step(self, s):
+        t = s.t - self._mission_t0
+        r = self.traj.sample(t)
+        q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw)
+        self._send(s.t, q, thrust)
+        self.steps += 1
+        self._log_row(t, r, s, q, thrust)
+        if self._breach(s):
+            return
+        if t >= self.traj.duration:
+            self._cut_from = thrust
+            self._enter("touchdown", s)
+        self._progress(t, r, s)
+
+    def _log_row(self, t, r, s, q, thrust):
+        c = self.ctrl
+        z = c.z
+        v = c.td
+        phase = self._segment_name(t)
+        row = [t, phase, *r.pos, *r.vel, *r.acc, r.yaw, *s.pos, *s.vel, self.yaw]
+        row += [float(z[i, j]) if self.kind != "pd" else math.nan for i in range(3)
+                for j in range(3)]
+        row += [float(v[i, j]) if self.kind == "adrc" else math.nan for i in range(3)
+                for j in range(2)]
+        row += [*c.accel_command, *c.accel_applied, *q, thrust, *self.true_dist]
+        self.rec.table.row([float(x) if not isinstance(x, str) else x for x in row])
+        self.rows_t.append(t)
+        self.rows_ref.append(r.pos)
+        self.rows_pos.append(s.pos)
+        if self.kind != "pd" and s.t - self._last_named >= 0.1:  # live, for a ground station
+            self._last_named = s.t
+            for i, a in enumerate("xyz"):
+                self.link.named_float(s.t * 1000.0, f"z3_{a}", float(z[i, 2]))
+
+    def _segment_name(self, t):
+        name = self.phases[0][1] if self.phases else ""
+        for t0, n in self.phases:
+            if t >= t0:
+                name = n
+        return name
+
+    def _breach(self, s):
+        sf = self.m.safety
+        rel = s.pos - self.origin
+        alt = -rel[2]
+        why = None
+        if not sf.geofence_north[0] <= rel[0] <= sf.geofence_north[1] or \
+                not sf.geofence_east[0] <= rel[1] <= sf.geofence_east[1]:
+            why = f"geofence breach at north {rel[0]:.1f} m, east {rel[1]:.1f} m"
+        elif alt > sf.altitude_max or alt < sf.altitude_min:
+            why = f"altitude limit breach at {alt:.1f} m"
+        elif float(np.linalg.norm(s.vel)) > sf.max_speed:
+            why = f"speed limit breach at {np.linalg.norm(s.vel):.1f} m/s"
+        if why is None:
+            return False
+        self._abort_land(why)
+        return True
+
+    def _abort_land(self, why, hold_first=False):
+        """Hand the vehicle to the autopilot's land mode (after a hold, if asked)."""
+        self.reason = why
+        self.say(f"{why}: landing")
+        if hold_first:
+            if self.link.autopilot == "px4":
+                self.link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_HOLD)
+            else:
+                self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
+        self.link.command(M.MAV_CMD_NAV_LAND)
+        self._land_cmd_wall = time.monotonic()
+        self.phase = "landing"
+
+    def _landing(self, s):
+        if not self.link.armed and self.link.heartbeat is not None:
+            self.phase = "done"
+
+    def _disarming(self, s):
+        ack = self.link.acks.get(M.MAV_CMD_COMPONENT_ARM_DISARM)
+        if not self.link.armed:
+            self.phase = "done"
+        elif ack is not None and ack.result != M.MAV_RESULT_ACCEPTED:
+            self._abort_land(f"disarm refused ({result_name(ack.result)})")
+        elif ack is None:
+            self._retry(lambda: self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0), "disarm")
+
+    def _wait_landed(self, timeout=120.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and self.phase != "done":
+            msg = self.link.recv(0.05)
+            if msg is not None:
+                self._dispatch(msg)
+            self._watch(time.monotonic())
+
+    def _watch(self, now):
+        """Wall-clock checks: heartbeat out, stale telemetry."""
+        if now - getattr(self, "_hb_wall", 0.0) >= 1.0:
+            self._hb_wall = now
+            self.link.send_heartbeat()
+        if self.phase == "prearm" and (self._last_sample_wall is None
+                                       or now - self._last_sample_wall > 0.2):
+            # no telemetry yet: an idle setpoint now and then starts a lockstep vehicle's clock
+            # (a real autopilot ignores it outside offboard)
+            if now - getattr(self, "_kick_wall", 0.0) >= 0.1:
+                self._kick_wall = now
+                t_ms = 0.0 if self.last is None else self.last.t * 1000.0
+                self.link.attitude_target(t_ms, level_quat(self.yaw), 0.0)
+            return
+        if self.phase == "done" or self._last_sample_wall is None:
+            return
+        # time since the last sample, or since we answered it if that took long: a lockstep
+        # vehicle cannot move on before our answer
+        stale = now - max(self._last_sample_wall, getattr(self, "_last_send_wall", 0.0))
+        if stale <= self.m.safety.telemetry_timeout_s:
+            return
+        if self.phase in ("mission", "spoolup", "touchdown"):
+            # level hover on the last known thrust, then the autopilot's land mode
+            self.say(f"telemetry stale for {stale:.2f} s: level hover, then land")
+            self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), self.hover)
+            self._abort_land("telemetry lost")
+        elif self.phase == "landing" and stale > 10.0:
+            raise FlightError("telemetry lost; the vehicle was told to land")
+        if self.phase == "landing":
+            if now - getattr(self, "_hover_wall", 0.0) >= self.h:
+                self._hover_wall = now
+                self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), self.hover)
+
+    def _progress(self, t, r, s):
+        now = time.monotonic()
+        if not self.progress or now - self._last_print < 0.2:
+            return
+        self._last_print = now
+        T = self.traj.duration
+        k = min(1.0, t / T) if T > 0 else 1.0
+        bar = "#" * int(30 * k) + "-" * (30 - int(30 * k))
+        err = float(np.linalg.norm(s.pos - r.pos))
+        line = (f"{self._segment_name(t):<18.18} t {t:6.1f}/{T:.0f} s  error {err:6.3f} m  "
+                f"[{bar}]")
+        if self.out.isatty():
+            self.out.write("\r\033[K" + line)
+            self.out.flush()
+        elif now - getattr(self, "_last_line", 0.0) >= 5.0:
+            self._last_line = now
+            self.out.write(line + "\n")
+            self.out.flush()
+
+    def _finish(self):
+        t = np.asarray(self.rows_t)
+        ref = np.asarray(self.rows_ref).reshape(-1, 3)
+        pos = np.asarray(self.rows_pos).reshape(-1, 3)
+        summary = {
+            "controller": self.kind,
+            "mission": self.m.name,
+            "mission_file": self.m.source,
+            "autopilot": self.link.autopilot,
+            "duration_s": float(t[-1]) if t.size else 0.0,
+            "landed": (not self.link.armed) and self.reason is None,
+            "disarmed": not self.link.armed,
+            "aborted": self.reason,
+            "samples": self.samples,
+            "control_steps": self.steps,
+            "missed_periods": self.missed,
+            "rate_hz": self.m.controller.rate_hz,
+            "settle_s": self.m.settle_s,
+            "vehicle_messages": self.texts[-50:],
+        }
+        summary.update(error_figures(t, ref, pos))
+        if self.m.settle_s > 0:
+            summary["after_settle"] = error_figures(t, ref, pos, self.m.settle_s)
+        self.rec.write_summary(summary)
+        return summary
+
+
+def print_table(summary, out=sys.stdout):
+    rms, mx = summary["rms_error_xyz_m"], summary["max_error_xyz_m"]
+    out.write("\n  position error (m)      x        y        z       3-D\n")
+    out.write(f"  RMS               {rms[0]:8.4f} {rms[1]:8.4f} {rms[2]:8.4f} "
+              f"{summary['rms_error_m']:9.4f}\n")
+    out.write(f"  max               {mx[0]:8.4f} {mx[1]:8.4f} {mx[2]:8.4f} "
+              f"{summary['max_error_m']:9.4f}\n")
+    if "after_settle" in summary:
+        a = summary["after_settle"]
+        out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
+                  f"max {a['max_error_m']:.4f}\n")
+    out.flush()
+

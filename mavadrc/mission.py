@@ -1,0 +1,420 @@
+"""Missions: one YAML file says what to fly, with which controller, on what, in what wind.
+
+    name: thesis spiral in wind
+    vehicle: crazyflie              # a vehicle file; or {hover_thrust: 0.6} / {mass:, max_thrust:}
+    controller:
+      type: ladrc                   # adrc | ladrc | pd
+      rate_hz: 100
+      wc: [2.5, 2.5, 3.0]           # per axis (x, y, z) or one number
+      wo: [12.5, 12.5, 15.0]
+    trajectory:                     # positions are north, east, altitude (m) from the takeoff spot
+      - takeoff: {altitude: 1.0, speed: 0.5}
+      - spiral: {radius: 10, omega: 0.5, z0: 1.0, climb: 0.1, duration: 40, join: direct}
+      - land: {speed: 0.5}
+    wind: breeze_1ms                # the bundled vehicle only: a wind file or mapping
+    safety: {geofence: {north: [-15, 15], east: [-15, 15]}, altitude: {max: 20}}
+
+A bad file is refused before anything flies, with the file, line and field
+(:class:`sim.yamlio.ConfigError`).
+"""
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sim.yamlio import ConfigError, Section, config_path, load_yaml
+
+from . import trajectories as T
+
+KINDS = ("adrc", "ladrc", "pd")
+SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named")
+
+
+@dataclass
+class ControllerSpec:
+    kind: str = "ladrc"
+    rate_hz: float = 100.0
+    gains: dict = field(default_factory=dict)  # keyword -> scalar or (x, y, z)
+    tilt_max_deg: float = 35.0
+    thrust_min: float = 0.05
+    thrust_max: float = 1.0
+
+
+@dataclass
+class Safety:
+    geofence_north: tuple = (-50.0, 50.0)  # m from the takeoff spot
+    geofence_east: tuple = (-50.0, 50.0)
+    altitude_min: float = -1.0  # m above the takeoff spot (below it: breach)
+    altitude_max: float = 50.0
+    max_speed: float = 15.0  # m/s
+    telemetry_timeout_s: float = 0.5
+    set_guid_options: bool = False  # ArduPilot: set GUID_OPTIONS bit 3 if it is clear
+
+
+@dataclass
+class Mission:
+    name: str
+    source: str
+    text: str
+    segments: list  # [(kind, Section-read dict, line)]
+    controller: ControllerSpec
+    safety: Safety
+    vehicle: str = None  # a bundled vehicle name or file
+    hover_thrust: float = None
+    mass: float = None
+    max_thrust: float = None
+    wind: object = None  # name, path or mapping (bundled vehicle only)
+    seed: int = 0
+    autopilot: str = "px4"  # personality of the bundled vehicle
+    attitude_controller: str = "px4"  # the bundled vehicle's own inner loop
+    noise: bool = False
+    settle_s: float = 0.0  # errors are also reported after this mission time
+    out: str = "runs"
+    transit_speed: float = 1.0
+
+    def build_trajectory(self, origin=(0.0, 0.0, 0.0)):
+        """The mission's reference as one trajectory, offset to ``origin`` (NED of the takeoff
+        spot); returns (trajectory, [(start_time, segment name)])."""
+        parts, names = [], []
+        here = np.zeros(3)  # mission frame: takeoff spot at the origin, NED
+        here_vel = np.zeros(3)
+        here_yaw = 0.0
+        for kind, spec, section in self.segments:
+            try:
+                new = _segment(kind, spec, here, self)
+            except ValueError as exc:
+                section.error(None, str(exc))
+            for p, name in new:
+                first = p.sample(0.0)
+                jump = np.linalg.norm(first.pos - here) > 1e-6 or \
+                    np.linalg.norm(first.vel - here_vel) > 1e-6
+                if jump and spec.get("join", "transit") == "transit":
+                    parts.append(Transit(here, here_vel, here_yaw, first, self.transit_speed))
+                    names.append(f"transit to {name}")
+                parts.append(p)
+                names.append(name)
+                end = p.sample(p.duration) if math.isfinite(p.duration) else first
+                here, here_vel, here_yaw = end.pos, end.vel, end.yaw
+        seq = T.Sequence(parts, join_tol=math.inf)
+        traj = Shifted(seq, np.asarray(origin, dtype=float))
+        return traj, list(zip(seq.start_times, names))
+
+
+class Shifted(T.Trajectory):
+    """A trajectory moved by a constant NED offset (the takeoff spot)."""
+
+    def __init__(self, inner, offset):
+        self.inner = inner
+        self.offset = np.asarray(offset, dtype=float)
+        self.duration = inner.duration
+
+    def _eval(self, t):
+        pos, vel, acc, yaw, yaw_rate = self.inner.sample_many(t)
+        return pos + self.offset, vel, acc, yaw, yaw_rate
+
+
+def _ned(n, e, alt):
+    return np.array([float(n), float(e), -float(alt)])
+
+
+def _yaw(spec, default=0.0):
+    if spec.get("yaw") == "tangent":
+        return "tangent"
+    return math.radians(spec["yaw_deg"]) if "yaw_deg" in spec else default
+
+
+def _segment(kind, s, here, m):
+    """Trajectory parts of one segment starting from ``here`` (mission frame)."""
+    alt_here = -here[2]
+    if kind == "takeoff":
+        return [(T.Takeoff(here, s["altitude"], speed=s.get("speed", 0.5), yaw=_yaw(s)),
+                 "takeoff")]
+    if kind == "land":
+        return [(T.Land(here, s.get("speed", 0.5), yaw=_yaw(s)), "land")]
+    if kind == "hover":
+        pos = _ned(*s["position"]) if "position" in s else here
+        return [(T.Hover(pos, yaw=_yaw(s), duration=s["duration"]), "hover")]
+    if kind == "circle":
+        return [(T.Circle(s["radius"], s["speed"], s.get("altitude", alt_here),
+                          center=tuple(s.get("center", (0.0, 0.0))),
+                          climb_rate=s.get("climb_rate", 0.0), yaw=_yaw(s, None),
+                          clockwise=s.get("clockwise", False),
+                          phase=math.radians(s.get("phase_deg", 0.0)),
+                          duration=s.get("duration", math.inf) if "laps" not in s else math.inf,
+                          laps=s.get("laps")), "circle")]
+    if kind == "spiral":
+        return [(Centered(T.Spiral(radius=s.get("radius", 10.0), omega=s.get("omega", 0.5),
+                                   z0=s.get("z0", 1.0), climb=s.get("climb", 0.1),
+                                   yaw=_yaw(s, math.pi / 6), duration=s["duration"]),
+                          s.get("center", (0.0, 0.0))), "spiral")]
+    if kind == "figure_eight":
+        return [(T.FigureEight(s["a"], s["period"], s.get("altitude", alt_here),
+                               center=tuple(s.get("center", (0.0, 0.0))), yaw=_yaw(s, None),
+                               duration=s["duration"]), "figure_eight")]
+    if kind == "waypoints":
+        pts = [here] + [_ned(*p) for p in s["points"]]
+        return [(T.Waypoints(pts, speed=s["speed"], yaw=_yaw(s, None), dwell=s.get("dwell", 0.0)),
+                 "waypoints")]
+    if kind == "named":
+        over = dict(s.get("params", {}))
+        traj = T.by_name(s["name"], **over)
+        if "duration" in s:
+            traj = Truncated(traj, s["duration"])
+        return [(traj, s["name"])]
+    raise ValueError(f"unknown segment {kind!r}")
+
+
+class Transit(T.Trajectory):
+    """A quintic leg from a point at rest (or moving) to the start of the next segment, matching
+    its position, velocity and acceleration, so a segment that starts at speed (a circle, the
+    thesis spiral) is joined without a velocity step.  The heading turns along a smoothstep.
+
+    Duration: long enough for the distance at ``speed`` (peak speed of a rest-to-rest quintic is
+    1.875 distance/T) and for the change of velocity at about 2 m/s^2.
+    """
+
+    ACCEL = 2.0
+
+    def __init__(self, p0, v0, yaw0, ref, speed):
+        p0, v0 = np.asarray(p0, dtype=float), np.asarray(v0, dtype=float)
+        p1, v1, a1 = ref.pos, ref.vel, ref.acc
+        dist = float(np.linalg.norm(p1 - p0))
+        dv = float(np.linalg.norm(v1 - v0))
+        self.duration = max(1.0, 1.875 * dist / speed, 2.5 * dv / self.ACCEL)
+        Tn = self.duration
+        # coefficients per axis of p(s) = sum c_k s^k, s = t/T, from the six boundary values
+        A = np.array([[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, 2, 0, 0, 0],
+                      [1, 1, 1, 1, 1, 1], [0, 1, 2, 3, 4, 5], [0, 0, 2, 6, 12, 20]], dtype=float)
+        b = np.vstack([p0, v0 * Tn, np.zeros(3), p1, v1 * Tn, a1 * Tn * Tn])
+        self.c = np.linalg.solve(A, b)  # (6, 3)
+        self.yaw0 = float(yaw0)
+        self.dyaw = float((ref.yaw - yaw0 + math.pi) % (2 * math.pi) - math.pi)
+
+    def _eval(self, t):
+        Tn = self.duration
+        s = (t / Tn)[:, None]
+        k = np.arange(6)
+        pos = (s ** k) @ self.c
+        vel = (k[1:] * s ** (k[1:] - 1)) @ self.c[1:] / Tn
+        acc = (k[2:] * (k[2:] - 1) * s ** (k[2:] - 2)) @ self.c[2:] / Tn**2
+        u = s[:, 0]
+        smooth = u * u * (3 - 2 * u)
+        yaw = self.yaw0 + self.dyaw * smooth
+        yaw_rate = self.dyaw * 6 * u * (1 - u) / Tn
+        return pos, vel, acc, yaw, yaw_rate
+
+
+class Centered(T.Trajectory):
+    """A trajectory whose horizontal origin is moved to ``center`` (north, east)."""
+
+    def __init__(self, inner, center):
+        self.inner = inner
+        self.offset = np.array([float(center[0]), float(center[1]), 0.0])
+        self.duration = inner.duration
+
+    def _eval(self, t):
+        pos, vel, acc, yaw, yaw_rate = self.inner.sample_many(t)
+        return pos + self.offset, vel, acc, yaw, yaw_rate
+
+
+class Truncated(T.Trajectory):
+    """An open-ended trajectory cut after ``duration`` seconds."""
+
+    def __init__(self, inner, duration):
+        self.inner = inner
+        self.duration = float(duration)
+
+    def _eval(self, t):
+        return self.inner.sample_many(t)
+
+
+# --- reading the file ----------------------------------------------------------------------------
+
+_SEG_KEYS = {
+    "takeoff": {"altitude": "pos", "speed": "pos", "yaw_deg": "num"},
+    "land": {"speed": "pos", "yaw_deg": "num"},
+    "hover": {"duration": "pos", "position": "vec3", "yaw_deg": "num"},
+    "circle": {"radius": "pos", "speed": "pos", "altitude": "nonneg", "center": "vec2",
+               "climb_rate": "num", "yaw_deg": "num", "yaw": "tangent", "clockwise": "bool",
+               "phase_deg": "num", "duration": "pos", "laps": "pos"},
+    "spiral": {"radius": "pos", "omega": "num", "z0": "nonneg", "climb": "num", "yaw_deg": "num",
+               "duration": "pos", "center": "vec2"},
+    "figure_eight": {"a": "pos", "period": "pos", "altitude": "nonneg", "center": "vec2",
+                     "yaw_deg": "num", "yaw": "tangent", "duration": "pos"},
+    "waypoints": {"points": "points", "speed": "pos", "dwell": "nonneg", "yaw_deg": "num",
+                  "yaw": "tangent"},
+    "named": {"name": "str", "params": "map", "duration": "pos"},
+}
+_REQUIRED = {
+    "takeoff": ("altitude",), "hover": ("duration",), "circle": ("radius", "speed"),
+    "spiral": ("duration",), "figure_eight": ("a", "period", "duration"),
+    "waypoints": ("points", "speed"), "named": ("name",),
+}
+
+
+def _read_segment(sec):
+    keys = [k for k in sec.data]
+    if len(keys) != 1 or keys[0] not in SEGMENTS:
+        sec.error(keys[0] if keys else None,
+                  f"each trajectory item is one of {', '.join(SEGMENTS)} (got {keys!r})")
+    kind = keys[0]
+    body = sec.raw(kind)
+    if body is None:
+        body = {}
+    inner = Section(body, sec.source, sec.field_name(kind), line=sec.line(kind))
+    spec = {}
+    for key in _REQUIRED.get(kind, ()):
+        inner.raw(key)  # raises 'required field missing' with the line
+    for key, what in _SEG_KEYS[kind].items():
+        if not inner.has(key):
+            continue
+        if what == "pos":
+            spec[key] = inner.number(key, gt=0.0)
+        elif what == "nonneg":
+            spec[key] = inner.number(key, ge=0.0)
+        elif what == "num":
+            spec[key] = inner.number(key)
+        elif what == "bool":
+            spec[key] = inner.boolean(key)
+        elif what == "str":
+            spec[key] = inner.string(key)
+        elif what == "tangent":
+            spec[key] = inner.string(key, choices=("tangent",))
+        elif what == "vec2":
+            spec[key] = tuple(inner.vector(key, 2))
+        elif what == "vec3":
+            spec[key] = tuple(inner.vector(key, 3))
+        elif what == "map":
+            spec[key] = dict(inner.raw(key))
+        elif what == "points":
+            pts = inner.raw(key)
+            if not isinstance(pts, list) or len(pts) < 1:
+                inner.error(key, "must be a list of [north, east, altitude] points")
+            for i, p in enumerate(pts):
+                if not (isinstance(p, list) and len(p) == 3
+                        and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                and math.isfinite(v) for v in p)):
+                    inner.error(key, f"point {i} must be [north, east, altitude] (got {p!r})")
+            spec[key] = [tuple(map(float, p)) for p in pts]
+    if inner.has("join"):
+        spec["join"] = inner.string("join", choices=("transit", "direct"))
+    inner.finish()
+    return kind, spec, inner
+
+
+def _read_controller(sec):
+    c = ControllerSpec()
+    c.kind = sec.string("type", "ladrc", choices=KINDS)
+    c.rate_hz = sec.number("rate_hz", 100.0, gt=0.0, le=1000.0)
+    c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
+    c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
+    c.thrust_max = sec.number("thrust_max", 1.0, gt=0.0, le=1.0)
+    per_axis = ("wc", "wo", "b0", "kp", "kd", "r0", "r", "c", "h1", "delta", "accel_max")
+    for key in per_axis:
+        if sec.has(key):
+            c.gains[key] = tuple(sec.vector(key, 3, scalar_ok=True, gt=0.0))
+    if sec.has("beta"):
+        c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
+    if sec.has("td"):
+        c.gains["td"] = sec.boolean("td")
+    if sec.has("eso_gains"):
+        c.gains["eso_gains"] = sec.string("eso_gains", choices=("han", "thesis"))
+    sec.finish()
+    return c
+
+
+def _read_safety(sec, s):
+    if sec.has("geofence"):
+        g = sec.section("geofence")
+        s.geofence_north = tuple(g.vector("north", 2, s.geofence_north))
+        s.geofence_east = tuple(g.vector("east", 2, s.geofence_east))
+        for key in ("north", "east"):
+            lo, hi = getattr(s, f"geofence_{key}")
+            g.check(key, lo < 0.0 < hi, "the box must contain the takeoff spot (min < 0 < max)")
+        g.finish()
+    if sec.has("altitude"):
+        a = sec.section("altitude")
+        s.altitude_min = a.number("min", s.altitude_min)
+        s.altitude_max = a.number("max", s.altitude_max, gt=0.0)
+        a.check("max", s.altitude_max > s.altitude_min, "must exceed altitude.min")
+        a.finish()
+    s.max_speed = sec.number("max_speed", s.max_speed, gt=0.0)
+    s.telemetry_timeout_s = sec.number("telemetry_timeout_s", s.telemetry_timeout_s, gt=0.0)
+    s.set_guid_options = sec.boolean("set_guid_options", s.set_guid_options)
+    sec.finish()
+    return s
+
+
+def load_mission(path):
+    """Read and check a mission file; returns a :class:`Mission` or raises ConfigError."""
+    path = config_path(path, "missions") if not Path(str(path)).exists() else Path(path)
+    text = Path(path).read_text()
+    data = load_yaml(path, text=text)
+    top = Section(data, str(path))
+    m = Mission(name=top.string("name", Path(path).stem), source=str(path), text=text,
+                segments=[], controller=ControllerSpec(), safety=Safety())
+    if top.has("vehicle"):
+        v = top.raw("vehicle")
+        if isinstance(v, str):
+            m.vehicle = v
+            try:
+                from sim.params import load_vehicle
+                vp = load_vehicle(v)
+            except ConfigError as exc:
+                top.error("vehicle", str(exc))
+            m.hover_thrust = vp.hover_thrust_norm
+        else:
+            vs = top.section("vehicle")
+            m.hover_thrust = vs.number("hover_thrust", None, gt=0.0, lt=1.0)
+            m.mass = vs.number("mass", None, gt=0.0)
+            m.max_thrust = vs.number("max_thrust", None, gt=0.0)
+            if m.hover_thrust is None and (m.mass is None) != (m.max_thrust is None):
+                vs.error(None, "give hover_thrust, or both mass and max_thrust")
+            if m.mass is not None and m.max_thrust is not None and m.max_thrust <= m.mass * 9.80665:
+                vs.error("max_thrust", f"must exceed the weight ({m.mass * 9.80665:.3g} N)")
+            vs.finish()
+    m.controller = _read_controller(top.section("controller")) if top.has("controller") \
+        else ControllerSpec()
+    segs = top.sections("trajectory")
+    if not segs:
+        top.error("trajectory", "must list at least one segment")
+    m.segments = []
+    for s in segs:
+        kind, spec, inner = _read_segment(s)
+        m.segments.append((kind, spec, inner))
+    if m.segments[0][0] != "takeoff":
+        segs[0].error(None, "the first segment must be a takeoff (missions start on the ground)")
+    if m.segments[-1][0] != "land":
+        segs[-1].error(None, "the last segment must be a land")
+    if top.has("wind"):
+        m.wind = top.raw("wind")
+        try:
+            from sim.wind import load_wind
+            load_wind(m.wind)  # checked now, before anything flies
+        except ConfigError as exc:
+            top.error("wind", str(exc))
+    if top.has("sim"):
+        s = top.section("sim")
+        m.seed = int(s.number("seed", 0, ge=0))
+        m.autopilot = s.string("autopilot", "px4", choices=("px4", "ardupilot"))
+        m.attitude_controller = s.string("attitude_controller", "px4",
+                                         choices=("px4", "ladrc", "adrc", "pd"))
+        m.noise = s.boolean("noise", False)
+        s.finish()
+    m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()
+    if top.has("logging"):
+        lg = top.section("logging")
+        m.out = lg.string("out", "runs")
+        m.settle_s = lg.number("settle_s", 0.0, ge=0.0)
+        lg.finish()
+    m.transit_speed = top.number("transit_speed", 1.0, gt=0.0)
+    top.finish()
+    try:
+        m.build_trajectory()
+    except ValueError as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        top.error("trajectory", str(exc))
+    return m
