@@ -102,7 +102,7 @@ class Flight:
     CUT_S = 0.5  # thrust ramp down after touchdown
 
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
-                 out=sys.stdout, max_wall_s=None):
+                 out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0):
         self.m = mission
         self.link = link
         self.rec = record
@@ -111,6 +111,7 @@ class Flight:
         self.out = out
         self.progress = progress
         self.max_wall_s = max_wall_s
+        self.heartbeat_timeout = heartbeat_timeout
         self.texts = []
         self.phase = "connect"
         self.last = None  # latest Sample
@@ -121,7 +122,7 @@ class Flight:
         self.samples = 0
         self.missed = 0
         self.steps = 0
-        self._t_prev = None
+        self.setpoints = 0
         self.rows_t, self.rows_ref, self.rows_pos = [], [], []
         self.ctrl = None
         self.traj = None
@@ -149,7 +150,7 @@ class Flight:
     def run(self):
         link = self.link
         link.on_text = self.on_text
-        hb = link.wait_heartbeat()
+        hb = link.wait_heartbeat(self.heartbeat_timeout)
         self.say(f"connected to system {link.target_system} ({link.autopilot}, "
                  f"mode {hb.custom_mode:#x}) on {link.url}")
         if self.hover is None:
@@ -169,8 +170,16 @@ class Flight:
                 if msg is not None:
                     self._dispatch(msg)
                 self._watch(time.monotonic())
-                if self.max_wall_s is not None and time.monotonic() - wall0 > self.max_wall_s:
-                    raise FlightError(f"the flight took longer than {self.max_wall_s:.0f} s")
+                if self.max_wall_s is not None and time.monotonic() - wall0 > self.max_wall_s \
+                        and self.phase != "landing":
+                    self._abort_land(f"the flight took longer than {self.max_wall_s:.0f} s")
+        except FlightError as exc:
+            # the record is still completed; the vehicle is left in (or sent to) a safe mode
+            self.reason = str(exc)
+            if self.link.armed:
+                self._abort_land(str(exc))
+            self.summary = self._finish()
+            raise
         except KeyboardInterrupt:
             self.say("interrupted: hold, then land")
             self._abort_land("interrupted by the user", hold_first=True)
@@ -214,6 +223,7 @@ class Flight:
     def _send(self, t, q, thrust):
         self._setpoint = (q, thrust)
         self.link.attitude_target(t * 1000.0, q, thrust)
+        self.setpoints += 1
         self._last_send_wall = time.monotonic()
 
     # --- phases --------------------------------------------------------------------------------
@@ -293,7 +303,7 @@ class Flight:
             now = time.monotonic()
             if now - getattr(self, "_ka", 0.0) >= self.h:
                 self._ka = now
-                self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), 0.0)
+                self._send(self.last.t, level_quat(self.yaw), 0.0)
 
     def _retry(self, resend, what):
         ack_wait = 1.0
@@ -432,15 +442,16 @@ class Flight:
         if now - getattr(self, "_hb_wall", 0.0) >= 1.0:
             self._hb_wall = now
             self.link.send_heartbeat()
-        if self.phase == "prearm" and (self._last_sample_wall is None
-                                       or now - self._last_sample_wall > 0.2):
-            # no telemetry yet: an idle setpoint now and then starts a lockstep vehicle's clock
-            # (a real autopilot ignores it outside offboard)
+        waiting = self.phase in ("prearm", "mode", "arming", "disarming")
+        if waiting and (self._last_sample_wall is None or now - self._last_sample_wall > 0.2):
+            # no fresh telemetry while waiting on the vehicle: an idle setpoint now and then
+            # keeps a lockstep vehicle's clock going (a real autopilot ignores it outside
+            # offboard, and streams telemetry regardless)
             if now - getattr(self, "_kick_wall", 0.0) >= 0.1:
                 self._kick_wall = now
-                t_ms = 0.0 if self.last is None else self.last.t * 1000.0
-                self.link.attitude_target(t_ms, level_quat(self.yaw), 0.0)
-            return
+                self._send(0.0 if self.last is None else self.last.t, level_quat(self.yaw), 0.0)
+            if self.phase == "prearm":
+                return
         if self.phase == "done" or self._last_sample_wall is None:
             return
         # time since the last sample, or since we answered it if that took long: a lockstep
@@ -451,14 +462,22 @@ class Flight:
         if self.phase in ("mission", "spoolup", "touchdown"):
             # level hover on the last known thrust, then the autopilot's land mode
             self.say(f"telemetry stale for {stale:.2f} s: level hover, then land")
-            self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), self.hover)
+            self._send(self.last.t, level_quat(self.yaw), self.hover)
             self._abort_land("telemetry lost")
-        elif self.phase == "landing" and stale > 10.0:
-            raise FlightError("telemetry lost; the vehicle was told to land")
+        elif self.phase == "landing" and now - self._last_sample_wall > max(
+                5.0, 10.0 * self.m.safety.telemetry_timeout_s):
+            self.say("no telemetry since the land command: the vehicle is in its own land mode")
+            self.reason = self.reason or "telemetry lost"
+            self.phase = "done"
+            return
+        if self.phase == "landing" and now - self._land_cmd_wall > 120.0:
+            self.say("the vehicle has not disarmed 120 s after the land command; leaving it landing")
+            self.phase = "done"
+            return
         if self.phase == "landing":
             if now - getattr(self, "_hover_wall", 0.0) >= self.h:
                 self._hover_wall = now
-                self.link.attitude_target(self.last.t * 1000.0, level_quat(self.yaw), self.hover)
+                self._send(self.last.t, level_quat(self.yaw), self.hover)
 
     def _progress(self, t, r, s):
         now = time.monotonic()
@@ -494,6 +513,7 @@ class Flight:
             "aborted": self.reason,
             "samples": self.samples,
             "control_steps": self.steps,
+            "setpoints_sent": self.setpoints,
             "missed_periods": self.missed,
             "rate_hz": self.m.controller.rate_hz,
             "settle_s": self.m.settle_s,

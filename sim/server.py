@@ -825,6 +825,11 @@ class SitlServer:
     def _proof_of_life(self):
         self._last_setpoint_t = self.vehicle.time
         self._last_setpoint_wall = time.monotonic()
+        self._lockstep_tick()
+
+    def _lockstep_tick(self):
+        """In lockstep every well-formed setpoint advances the clock one period, whether or not
+        the current mode acts on it: the companion's stream is the clock."""
         if self.lockstep:
             self._pending_steps += 1
 
@@ -850,6 +855,7 @@ class SitlServer:
         if self.ap.name == "ardupilot":
             if self.mode.behaviour != PP.OFFBOARD:
                 self.stats.setpoints_ignored += 1
+                self._lockstep_tick()
                 return None
             self._proof_of_life()
             if not self.vehicle.armed:
@@ -870,6 +876,7 @@ class SitlServer:
             self._proof_of_life()  # a throttle-ignoring setpoint is not proof of life
         else:
             self.stats.setpoints_ignored += 1
+            self._lockstep_tick()
         self._att_target = (q, thrust, rates, mask)
         if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
             self.vehicle.set_attitude_target(
@@ -908,6 +915,7 @@ class SitlServer:
             pos = r.position + pos
         if self.ap.name == "ardupilot" and self.mode.behaviour != PP.OFFBOARD:
             self.stats.setpoints_ignored += 1
+            self._lockstep_tick()
             return None
         self._proof_of_life()
         self._guided_att = None
