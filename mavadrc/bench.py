@@ -191,12 +191,48 @@ def _lockstep_hover(mavutil, port, seconds):
     return n * 0.01 / wall
 
 
+def fly_figures(realtime_seconds=10.0, lockstep_seconds=60.0):
+    """`mavadrc fly` against the bundled vehicle: latency from telemetry receipt to setpoint
+    sent in real time at 100 and 250 Hz (p99, and missed periods), and the wall time of a
+    lockstep mission."""
+    import io
+    import tempfile
+    from pathlib import Path
+
+    from .fly import fly
+    from .mission import load_mission
+
+    def hover_mission(folder, rate, seconds):
+        path = Path(folder) / f"hover{rate}.yaml"
+        path.write_text(
+            f"name: bench hover\nvehicle: crazyflie\ncontroller: {{type: ladrc, rate_hz: {rate}}}\n"
+            "trajectory:\n  - takeoff: {altitude: 1.0, speed: 1.0}\n"
+            f"  - hover: {{duration: {seconds}}}\n  - land: {{speed: 1.0}}\n")
+        return load_mission(path)
+
+    fig = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for rate in (100, 250):
+            summary, _ = fly(hover_mission(tmp, rate, realtime_seconds), out=tmp, figures=False,
+                             progress=False, stream=io.StringIO())
+            fig[f"fly_{rate}hz_latency_p99_us"] = summary["latency_p99_ms"] * 1e3
+            fig[f"fly_{rate}hz_missed_periods_n"] = float(summary["missed_periods"])
+        mission = hover_mission(tmp, 100, lockstep_seconds - 5.0)
+        t0 = time.perf_counter()
+        summary, _ = fly(mission, out=tmp, lockstep=True, figures=False, progress=False,
+                         stream=io.StringIO())
+        fig["fly_lockstep_60s_mission_wall_s"] = time.perf_counter() - t0
+        fig["fly_lockstep_mission_sim_s"] = summary["duration_s"]
+    return fig
+
+
 def all_figures(sitl=True):
     fig = control_figures()
     from sim.bench import physics_figures
     fig.update(physics_figures())
     if sitl:
         fig.update(sitl_figures())
+        fig.update(fly_figures())
     return fig
 
 

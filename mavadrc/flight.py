@@ -25,6 +25,7 @@ import numpy as np
 from .control import PositionController
 from .link import M, result_name
 from .record import error_figures
+from .trajectories import Reference
 
 PX4_OFFBOARD = (6, 0)
 PX4_HOLD = (4, 3)
@@ -123,6 +124,7 @@ class Flight:
         self.missed = 0
         self.steps = 0
         self.setpoints = 0
+        self.latency = []
         self.rows_t, self.rows_ref, self.rows_pos = [], [], []
         self.ctrl = None
         self.traj = None
@@ -207,12 +209,16 @@ class Flight:
                        np.array([msg.vx, msg.vy, msg.vz]))
             if self.last is not None and s.t <= self.last.t:
                 return  # a repeat or an old sample
-            if self.last is not None and s.t - self.last.t > 2.5 * self.h:
+            if self.last is not None and s.t - self.last.t > 2.5 * self.h \
+                    and self.phase in ("mission", "touchdown"):
                 self.missed += int(round((s.t - self.last.t) / self.h)) - 1
             self.last = s
             self.samples += 1
             self._last_sample_wall = time.monotonic()
+            t_in = time.perf_counter()
             self._step(s)
+            if self.phase in ("mission", "touchdown"):  # telemetry in -> setpoint out
+                self.latency.append(time.perf_counter() - t_in)
         elif t == "ATTITUDE":
             self.yaw = msg.yaw
         elif t == "EXTENDED_SYS_STATE":
@@ -340,14 +346,25 @@ class Flight:
         self._enter("spoolup", s)
 
     def _start_mission(self, s):
+        # the reference at every control period, computed once: a vehicle whose clock ticks on
+        # the period (the bundled one) reads it from here; other times are sampled exactly
+        n = int(self.traj.duration / self.h) + 2
+        self._grid = self.traj.sample_many(np.arange(n) * self.h)
         self.ctrl.reset(s.pos)
         self._mission_t0 = s.t
         self.say(f"flying {self.m.name!r} with {self.kind} ({self.traj.duration:.1f} s)")
         self._enter("mission", s)
 
+    def _reference(self, t):
+        k = int(round(t / self.h))
+        pos, vel, acc, yaw, yaw_rate = self._grid
+        if abs(t - k * self.h) < 1e-7 and k < len(yaw):
+            return Reference(pos[k], vel[k], acc[k], float(yaw[k]), float(yaw_rate[k]))
+        return self.traj.sample(t)
+
     def _mission_step(self, s):
         t = s.t - self._mission_t0
-        r = self.traj.sample(t)
+        r = self._reference(t)
         q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw)
         self._send(s.t, q, thrust)
         self.steps += 1
@@ -519,6 +536,10 @@ class Flight:
             "settle_s": self.m.settle_s,
             "vehicle_messages": self.texts[-50:],
         }
+        if self.latency:
+            lat = np.asarray(self.latency) * 1e3
+            summary["latency_p50_ms"] = float(np.percentile(lat, 50))
+            summary["latency_p99_ms"] = float(np.percentile(lat, 99))
         summary.update(error_figures(t, ref, pos))
         if self.m.settle_s > 0:
             summary["after_settle"] = error_figures(t, ref, pos, self.m.settle_s)

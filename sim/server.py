@@ -150,7 +150,7 @@ class SitlServer:
     """
 
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
-                 lockstep_timeout=3.0, tick=0.004, signing_key=None, home=(47.397742, 8.545594, 488.0),
+                 lockstep_timeout=3.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
                  host="127.0.0.1", offboard_port=None, gcs_port=None, bind_offboard=None,
                  bind_gcs=None):
         self.vehicle = vehicle
