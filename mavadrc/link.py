@@ -27,6 +27,11 @@ RESULT_NAMES = {v: k for k, v in vars(M).items() if k.startswith("MAV_RESULT_")
                 and isinstance(v, int)}
 
 
+#: commands whose every answer the user sees (all others are shown when not ACCEPTED)
+ANNOUNCED = (M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_LAND,
+             M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+
+
 class LinkError(RuntimeError):
     """The link or the vehicle did not do what the flight needs; the message says what."""
 
@@ -104,9 +109,10 @@ class Link:
             self.heartbeat = msg
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg
-            if msg.result != M.MAV_RESULT_ACCEPTED and msg.result != M.MAV_RESULT_IN_PROGRESS:
-                self.on_text(M.MAV_SEVERITY_WARNING,
-                             f"command {command_name(msg.command)}: {result_name(msg.result)}")
+            if msg.result != M.MAV_RESULT_ACCEPTED or msg.command in ANNOUNCED:
+                self.on_text(M.MAV_SEVERITY_INFO if msg.result == M.MAV_RESULT_ACCEPTED
+                             else M.MAV_SEVERITY_WARNING,
+                             f"{command_name(msg.command)}: {result_name(msg.result)}")
         elif t == "STATUSTEXT":
             self.on_text(msg.severity, msg.text)
         elif t == "PARAM_VALUE":
