@@ -103,7 +103,7 @@ class Flight:
     CUT_S = 0.5  # thrust ramp down after touchdown
 
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
-                 out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0):
+                 out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0, lockstep=False):
         self.m = mission
         self.link = link
         self.rec = record
@@ -113,6 +113,10 @@ class Flight:
         self.progress = progress
         self.max_wall_s = max_wall_s
         self.heartbeat_timeout = heartbeat_timeout
+        # a lockstep vehicle cannot move on without us, so a slow answer (a machine busy
+        # compiling) is not a lost link; give it longer before calling telemetry stale
+        self.telemetry_timeout = mission.safety.telemetry_timeout_s if not lockstep else max(
+            5.0, mission.safety.telemetry_timeout_s)
         self.texts = []
         self.phase = "connect"
         self.last = None  # latest Sample
@@ -160,7 +164,8 @@ class Flight:
             self.hover = float(link.param_read(name))
             self.say(f"hover thrust {self.hover:.3f} from the vehicle's {name}")
         self.ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind)
-        self.ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))  # compile the kernels now
+        self.ctrl.reset(np.zeros(3))  # compile every kernel of the loop now, not mid-flight
+        self.ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         self.ctrl.reset()
         self.h = 1.0 / self.m.controller.rate_hz
         self._request_streams()
@@ -362,7 +367,23 @@ class Flight:
             return Reference(pos[k], vel[k], acc[k], float(yaw[k]), float(yaw_rate[k]))
         return self.traj.sample(t)
 
+    def _in_control(self):
+        """Whether the autopilot is still in the mode that takes our setpoints."""
+        hb = self.link.heartbeat
+        if hb is None:
+            return True
+        if self.link.autopilot == "px4":
+            return (hb.custom_mode >> 16) & 0xFF == PX4_OFFBOARD[0]
+        return hb.custom_mode in (AP_GUIDED_NOGPS, 4)
+
     def _mission_step(self, s):
+        if not self._in_control():
+            # the pilot or a failsafe took the vehicle: stop commanding, let the autopilot land
+            self.reason = f"the vehicle left offboard control (mode {self.link.custom_mode:#x})"
+            self.say(self.reason + "; waiting for it to land")
+            self._land_cmd_wall = time.monotonic()
+            self.phase = "landing"
+            return
         t = s.t - self._mission_t0
         r = self._reference(t)
         q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw)
@@ -474,7 +495,7 @@ class Flight:
         # time since the last sample, or since we answered it if that took long: a lockstep
         # vehicle cannot move on before our answer
         stale = now - max(self._last_sample_wall, getattr(self, "_last_send_wall", 0.0))
-        if stale <= self.m.safety.telemetry_timeout_s:
+        if stale <= self.telemetry_timeout:
             return
         if self.phase in ("mission", "spoolup", "touchdown"):
             # level hover on the last known thrust, then the autopilot's land mode
@@ -482,7 +503,7 @@ class Flight:
             self._send(self.last.t, level_quat(self.yaw), self.hover)
             self._abort_land("telemetry lost")
         elif self.phase == "landing" and now - self._last_sample_wall > max(
-                5.0, 10.0 * self.m.safety.telemetry_timeout_s):
+                5.0, 10.0 * self.telemetry_timeout):
             self.say("no telemetry since the land command: the vehicle is in its own land mode")
             self.reason = self.reason or "telemetry lost"
             self.phase = "done"

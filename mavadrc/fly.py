@@ -41,7 +41,8 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             url = connect
         link = Link(url, tlog=rec.tlog)
         flight = Flight(mission, link, rec, kind=kind, progress=progress, out=stream,
-                        max_wall_s=timeout)
+                        max_wall_s=timeout, lockstep=lockstep and connect is None,
+                        heartbeat_timeout=15.0 if vehicle is None else 120.0)
         summary = flight.run()
     finally:
         if link is not None:

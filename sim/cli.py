@@ -49,9 +49,30 @@ def add_arguments(p):
 NOISE = {"position": 0.01, "velocity": 0.02, "attitude": 0.002, "rates": 0.01}
 
 
+def warm_up(vehicle, wind, attitude_controller):
+    """Run every firmware path once on a throwaway vehicle, so numba compiles (or loads from its
+    cache) now rather than in the middle of a flight, where a pause would look like a lost link."""
+    from .vehicle import SimVehicle
+
+    v = SimVehicle(vehicle, wind=wind, attitude_controller=attitude_controller)
+    v.arm()
+    v.set_attitude_target([1.0, 0.0, 0.0, 0.0], v.hover_thrust)
+    v.step(0.02)
+    v.takeoff(1.0)
+    v.step(0.02)
+    v.set_position_target(pos=[0.0, 0.0, -1.0], vel=[0.0, 0.0, 0.0])
+    v.step(0.02)
+    v.hold()
+    v.land()
+    v.step(0.02)
+    v.true_disturbance()
+    v.reported()
+
+
 def make_server(args):
     from .vehicle import SimVehicle
 
+    warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
     if args.noise or args.latency > 0.0:
         sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}

@@ -10,7 +10,7 @@ on.
 Clocks: in real time the physics advances on the wall clock in ticks of ``tick`` seconds.  In
 lockstep the vehicle advances by one ``lockstep_dt`` for each setpoint that arrives, so a
 closed loop runs as fast as both sides allow and gives the same flight for the same seed; if
-setpoints stop for ``lockstep_timeout`` (3 s) of wall time while armed, the offboard-loss failsafe
+setpoints stop for ``lockstep_timeout`` (10 s) of wall time while armed, the offboard-loss failsafe
 engages and the clock falls back to real time so the vehicle can carry it out.
 """
 
@@ -150,7 +150,7 @@ class SitlServer:
     """
 
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
-                 lockstep_timeout=3.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
+                 lockstep_timeout=10.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
                  host="127.0.0.1", offboard_port=None, gcs_port=None, bind_offboard=None,
                  bind_gcs=None):
         self.vehicle = vehicle
