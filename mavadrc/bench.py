@@ -6,25 +6,20 @@ in the same run so ratios stay meaningful on a shared, noisy machine.  Names car
 
 import json
 import math
-import statistics
 import sys
 import time
 
 import numpy as np
 
+from sim.bench import median_us
+
 from .control import PD, AttitudeController, HanADRC, LinearADRC, PositionController
+from .embedded import free_udp_port
 
 
 def per_call_us(fn, calls=2000, repeats=25):
     """Median over ``repeats`` blocks of the mean time of one call, in microseconds."""
-    fn()  # compile / warm up
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        samples.append((time.perf_counter() - t0) / calls * 1e6)
-    return statistics.median(samples)
+    return median_us(fn, calls, repeats)
 
 
 def control_figures():
@@ -80,15 +75,6 @@ def control_figures():
     return fig
 
 
-def _free_udp_port():
-    import socket
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
 def _cpu_seconds(pid):
     """User + system CPU time of a process (Linux /proc), in seconds."""
     import os
@@ -99,9 +85,10 @@ def _cpu_seconds(pid):
 
 def _sitl_process(*extra):
     import subprocess
-    port = _free_udp_port()
+    port = free_udp_port()
     proc = subprocess.Popen([sys.executable, "-m", "sim", "--instance", "20", "--offboard-port",
-                             str(port), "--gcs-port", str(_free_udp_port()), *extra],
+                             str(port), "--gcs-port", str(free_udp_port()), "--bind-offboard", "0",
+                             "--bind-gcs", "0", *extra],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return proc, port
 
@@ -180,6 +167,9 @@ def _lockstep_hover(mavutil, port, seconds):
     step()
     command(M.MAV_CMD_DO_SET_MODE, 1, 6)
     command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    # waiting for the ACKs dropped the telemetry of the last step: one more setpoint moves the
+    # lockstep clock on, and from here each step answers the sample its setpoint produced
+    c.mav.set_attitude_target_send(0, c.target_system, 1, 7, [1.0, 0, 0, 0], 0, 0, 0, 0.0)
     for _ in range(100):  # the vehicle process loads its compiled kernels on first use
         step()
     n = int(seconds * 100)

@@ -11,28 +11,6 @@ def _bench(args):
 
 
 def _sitl(args):
-    f = sub.add_parser("fly", help="fly a mission (against the bundled vehicle unless --connect)")
-    f.add_argument("mission", help="mission YAML file (or a name in configs/missions)")
-    f.add_argument("--connect", default=None,
-                   help="fly a vehicle at this MAVLink URL (udpin:0.0.0.0:14540, udp://:14540, "
-                        "udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0:57600) instead of starting "
-                        "the bundled one")
-    f.add_argument("--controller", choices=("adrc", "ladrc", "pd"), default=None,
-                   help="position controller (default: the mission's)")
-    f.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
-    f.add_argument("--lockstep", action="store_true",
-                   help="bundled vehicle only: run as fast as the machine allows, deterministically")
-    f.add_argument("--seed", type=int, default=None, help="bundled vehicle's wind/noise seed")
-    f.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
-    f.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
-    f.add_argument("--timeout", type=float, default=None,
-                   help="give up (and land) after this many wall-clock seconds")
-    f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
-    f.set_defaults(func=_fly)
-    p = sub.add_parser("plot", help="redraw the figures of a flight record or of any .tlog")
-    p.add_argument("target", help="a flight record folder or a .tlog file")
-    p.add_argument("--out", default=None, help="where to write the PNGs")
-    p.set_defaults(func=_plot)
     from sim import cli as sim_cli
 
     return sim_cli.run(args)

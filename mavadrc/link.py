@@ -185,10 +185,11 @@ class Link:
         interval = -1 if hz <= 0 else int(1e6 / hz)
         self.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, msgid, interval)
 
-    def param_read(self, name, timeout=3.0, idle=None):
+    def _param_exchange(self, name, send, timeout, idle, what):
+        """Send a parameter request until the PARAM_VALUE for ``name`` comes back (3 tries)."""
         for _ in range(3):
             self.params.pop(name, None)
-            self.mav.param_request_read_send(self.target_system, 1, name.encode(), -1)
+            send()
             end = time.monotonic() + timeout / 3
             while time.monotonic() < end:
                 self.recv(0.02)
@@ -196,23 +197,20 @@ class Link:
                     idle()
                 if name in self.params:
                     return self._decode(self.params[name])
-        raise LinkError(f"the vehicle did not answer a read of parameter {name}")
+        raise LinkError(f"the vehicle did not {what} parameter {name}")
+
+    def param_read(self, name, timeout=3.0, idle=None):
+        return self._param_exchange(
+            name, lambda: self.mav.param_request_read_send(self.target_system, 1, name.encode(), -1),
+            timeout, idle, "answer a read of")
 
     def param_set(self, name, value, ptype, timeout=3.0, idle=None):
         raw = float(value)
         if ptype == M.MAV_PARAM_TYPE_INT32 and self.autopilot == "px4":
             raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
-        for _ in range(3):
-            self.params.pop(name, None)
-            self.mav.param_set_send(self.target_system, 1, name.encode(), raw, ptype)
-            end = time.monotonic() + timeout / 3
-            while time.monotonic() < end:
-                self.recv(0.02)
-                if idle is not None:
-                    idle()
-                if name in self.params:
-                    return self._decode(self.params[name])
-        raise LinkError(f"the vehicle did not confirm setting parameter {name}")
+        return self._param_exchange(
+            name, lambda: self.mav.param_set_send(self.target_system, 1, name.encode(), raw, ptype),
+            timeout, idle, "confirm setting")
 
     def _decode(self, pv):
         if pv.param_type == M.MAV_PARAM_TYPE_INT32 and self.autopilot == "px4":

@@ -17,7 +17,7 @@ from .params import load_vehicle
 from .vehicle import SimVehicle
 
 
-def _median_us(fn, calls, repeats):
+def median_us(fn, calls, repeats):
     """Median over ``repeats`` blocks of the mean time per call of ``fn`` (us)."""
     fn()  # compile / warm up
     samples = []
@@ -55,7 +55,7 @@ def _rotorpy_step_us(calls, repeats):
     def call():
         box[0] = quad.step(box[0], control, 0.001)
 
-    return _median_us(call, calls, repeats)
+    return median_us(call, calls, repeats)
 
 
 def physics_figures(quick=False):
@@ -81,7 +81,7 @@ def physics_figures(quick=False):
     cmd = np.full(4, vp.hover_omega)
     z3 = np.zeros(3)
     fig = {}
-    fig["physics_step_us"] = _median_us(lambda: phys.step(x, cmd, P, z3, z3, z3, 0.001),
+    fig["physics_step_us"] = median_us(lambda: phys.step(x, cmd, P, z3, z3, z3, 0.001),
                                         2000, reps)
     n = 20000
     fig["physics_step_compiled_us"] = _median_s(
@@ -90,7 +90,7 @@ def physics_figures(quick=False):
     v = SimVehicle("crazyflie", position=(0.0, 0.0, -2.0))
     v.arm()
     v.set_attitude_target([1.0, 0.0, 0.0, 0.0], v.hover_thrust)
-    fig["vehicle_step_us"] = _median_us(lambda: v.step(0.01), 50, reps) / 10.0
+    fig["vehicle_step_us"] = median_us(lambda: v.step(0.01), 50, reps) / 10.0
 
     f = SimVehicle("crazyflie", position=(0.0, 0.0, -2.0))
     f.arm()

@@ -10,16 +10,9 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: spe
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
+from mavadrc.embedded import free_udp_port  # noqa: F401  (re-exported for the tests)
 from sim.server import SitlServer
 from sim.vehicle import SimVehicle
-
-
-def free_udp_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def free_tcp_port():

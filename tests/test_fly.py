@@ -17,6 +17,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
+from mavadrc.embedded import free_udp_port  # noqa: E402
 from mavadrc.flight import Flight, FlightError  # noqa: E402
 from mavadrc.fly import fly  # noqa: E402
 from mavadrc.link import Link, LinkError, parse_url  # noqa: E402
@@ -107,18 +108,10 @@ def test_ardupilot_without_thrust_option_is_refused_with_an_explanation(tmp_path
 # --- failures -------------------------------------------------------------------------------------
 
 
-def free_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    p = s.getsockname()[1]
-    s.close()
-    return p
-
-
 def test_no_heartbeat_is_a_clear_error_in_time(tmp_path):
     mission = load_mission(MISSIONS / "hover.yaml")
     rec = FlightRecord(tmp_path / "r")
-    link = Link(f"udpin:127.0.0.1:{free_port()}", tlog=rec.tlog)
+    link = Link(f"udpin:127.0.0.1:{free_udp_port()}", tlog=rec.tlog)
     t0 = time.monotonic()
     with pytest.raises(LinkError, match="no heartbeat"):
         Flight(mission, link, rec, progress=False, out=io.StringIO(), heartbeat_timeout=1.0).run()
@@ -168,7 +161,7 @@ class FakeAutopilot(threading.Thread):
     (M.MAV_CMD_COMPONENT_ARM_DISARM, "refused to arm: DENIED"),
 ])
 def test_mode_or_arming_refused_stops_the_flight_with_the_vehicles_answer(cmd, words, tmp_path):
-    port = free_port()
+    port = free_udp_port()
     fake = FakeAutopilot(port, {cmd: M.MAV_RESULT_DENIED})
     fake.start()
     try:
@@ -196,7 +189,7 @@ def wait_rows(folder_glob, n, timeout=60.0):
 
 
 def test_link_lost_mid_flight_engages_the_failsafe_and_the_record_is_complete(tmp_path):
-    port = free_port()
+    port = free_udp_port()
     vehicle = subprocess.Popen([sys.executable, "-m", "sim", "--offboard-port", str(port),
                                 "--bind-offboard", "0", "--bind-gcs", "0"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

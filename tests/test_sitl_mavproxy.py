@@ -18,8 +18,10 @@ MAVPROXY = shutil.which("mavproxy.py") or os.path.join(os.path.dirname(sys.execu
 @pytest.mark.skipif(not os.path.exists(MAVPROXY), reason="MAVProxy is not installed")
 def test_mavproxy_detects_the_vehicle_and_downloads_every_parameter(tmp_path):
     gcs = free_udp_port()
-    sim = subprocess.Popen([sys.executable, "-m", "sim", "--instance", "11", "--gcs-port", str(gcs),
-                            "--offboard-port", str(free_udp_port()), "--duration", "60"],
+    sim = subprocess.Popen([sys.executable, "-m", "mavadrc", "sitl", "--instance", "11",
+                            "--gcs-port", str(gcs),
+                            "--offboard-port", str(free_udp_port()), "--bind-offboard", "0",
+                            "--bind-gcs", "0", "--duration", "60"],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     log = tmp_path / "mavproxy.out"
     try:
