@@ -18,7 +18,7 @@ controller, whose observers are fed the limited commands.
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -43,13 +43,6 @@ class Sample:
     t: float  # vehicle time, s
     pos: np.ndarray
     vel: np.ndarray
-
-
-@dataclass
-class FlightResult:
-    summary: dict
-    folder: object
-    texts: list = field(default_factory=list)
 
 
 def default_gains(kind):
@@ -138,6 +131,10 @@ class Flight:
         self._last_named = -1.0
         self._last_sample_wall = None
         self._setpoint = (level_quat(0.0), 0.0)
+        # wall-clock marks (time.monotonic) of the periodic sends and prints
+        self._ka = self._hb_wall = self._kick_wall = self._last_send_wall = 0.0
+        self._hover_wall = self._last_line = 0.0
+        self._land_cmd_wall = 0.0
 
     # --- reporting -----------------------------------------------------------------------------
 
@@ -312,7 +309,7 @@ class Flight:
         """While waiting for a parameter, keep the setpoint stream (and a lockstep clock) going."""
         if self.last is not None and self.link.conn is not None:
             now = time.monotonic()
-            if now - getattr(self, "_ka", 0.0) >= self.h:
+            if now - self._ka >= self.h:
                 self._ka = now
                 self._send(self.last.t, level_quat(self.yaw), 0.0)
 
@@ -477,7 +474,7 @@ class Flight:
 
     def _watch(self, now):
         """Wall-clock checks: heartbeat out, stale telemetry."""
-        if now - getattr(self, "_hb_wall", 0.0) >= 1.0:
+        if now - self._hb_wall >= 1.0:
             self._hb_wall = now
             self.link.send_heartbeat()
         waiting = self.phase in ("prearm", "mode", "arming", "disarming")
@@ -485,7 +482,7 @@ class Flight:
             # no fresh telemetry while waiting on the vehicle: an idle setpoint now and then
             # keeps a lockstep vehicle's clock going (a real autopilot ignores it outside
             # offboard, and streams telemetry regardless)
-            if now - getattr(self, "_kick_wall", 0.0) >= 0.1:
+            if now - self._kick_wall >= 0.1:
                 self._kick_wall = now
                 self._send(0.0 if self.last is None else self.last.t, level_quat(self.yaw), 0.0)
             if self.phase == "prearm":
@@ -494,7 +491,7 @@ class Flight:
             return
         # time since the last sample, or since we answered it if that took long: a lockstep
         # vehicle cannot move on before our answer
-        stale = now - max(self._last_sample_wall, getattr(self, "_last_send_wall", 0.0))
+        stale = now - max(self._last_sample_wall, self._last_send_wall)
         if stale <= self.telemetry_timeout:
             return
         if self.phase in ("mission", "spoolup", "touchdown"):
@@ -513,7 +510,7 @@ class Flight:
             self.phase = "done"
             return
         if self.phase == "landing":
-            if now - getattr(self, "_hover_wall", 0.0) >= self.h:
+            if now - self._hover_wall >= self.h:
                 self._hover_wall = now
                 self._send(self.last.t, level_quat(self.yaw), self.hover)
 
@@ -531,7 +528,7 @@ class Flight:
         if self.out.isatty():
             self.out.write("\r\033[K" + line)
             self.out.flush()
-        elif now - getattr(self, "_last_line", 0.0) >= 5.0:
+        elif now - self._last_line >= 5.0:
             self._last_line = now
             self.out.write(line + "\n")
             self.out.flush()
