@@ -112,17 +112,18 @@ class Stats:
 
 
 class _Sender:
-    """File-like target for pymavlink's MAVLink.send: writes each frame to every peer of a link."""
+    """File-like target for pymavlink's MAVLink.send: writes each frame to every peer of a link,
+    or, between ``Link.begin()`` and ``Link.flush()``, collects the frames of one step so they go
+    out together (several frames per datagram, as PX4 sends them)."""
 
     def __init__(self, link):
         self.link = link
 
     def write(self, buf):
-        for peer in self.link.peers:
-            try:
-                self.link.sock.sendto(buf, peer)
-            except OSError:
-                pass
+        if self.link.batch is not None:
+            self.link.batch.append(bytes(buf))
+        else:
+            self.link.sendto(buf)
 
 
 class Link:
@@ -130,6 +131,7 @@ class Link:
         self.name = name
         self.sock = sock
         self.peers = [remote] if remote else []
+        self.batch = None
         self.mav = mav
         mav.file = _Sender(self)
         self.default_rates = dict(rates)
@@ -140,6 +142,29 @@ class Link:
     def learn(self, addr):
         if addr not in self.peers:
             self.peers.append(addr)
+
+    MAX_DATAGRAM = 1400
+
+    def sendto(self, buf):
+        for peer in self.peers:
+            try:
+                self.sock.sendto(buf, peer)
+            except OSError:
+                pass
+
+    def begin(self):
+        self.batch = []
+
+    def flush(self):
+        frames, self.batch = self.batch, None
+        chunk = b""
+        for f in frames or ():
+            if chunk and len(chunk) + len(f) > self.MAX_DATAGRAM:
+                self.sendto(chunk)
+                chunk = b""
+            chunk += f
+        if chunk:
+            self.sendto(chunk)
 
 
 class SitlServer:
@@ -441,6 +466,7 @@ class SitlServer:
             self._last_hb_t = t
             self._last_hb_wall = time.monotonic()
         for link in self.links:
+            link.begin()
             for mid, interval in link.intervals.items():
                 if not interval:
                     continue
@@ -451,6 +477,7 @@ class SitlServer:
                         link.mav.send(msg)
                     nxt = due + interval
                     link.next_due[mid] = nxt if nxt > t else t + interval
+            link.flush()
 
     def statustext(self, severity, text):
         self._send_all(mavlink.MAVLink_statustext_message(severity, text[:50].encode()))
