@@ -106,6 +106,8 @@ class Flight:
         self.progress = progress
         self.max_wall_s = max_wall_s
         self.heartbeat_timeout = heartbeat_timeout
+        self.lockstep = lockstep
+        self._held = False
         # a lockstep vehicle cannot move on without us, so a slow answer (a machine busy
         # compiling) is not a lost link; give it longer before calling telemetry stale
         self.telemetry_timeout = mission.safety.telemetry_timeout_s if not lockstep else max(
@@ -132,9 +134,10 @@ class Flight:
         self._last_sample_wall = None
         self._setpoint = (level_quat(0.0), 0.0)
         # wall-clock marks (time.monotonic) of the periodic sends and prints
-        self._ka = self._hb_wall = self._kick_wall = self._last_send_wall = 0.0
+        self._hb_wall = self._kick_wall = self._last_send_wall = 0.0
         self._hover_wall = self._last_line = 0.0
-        self._land_cmd_wall = 0.0
+        self._land_cmd_wall = self._cmd_sent_wall = 0.0
+        self._tries = 0
 
     # --- reporting -----------------------------------------------------------------------------
 
@@ -166,6 +169,8 @@ class Flight:
         self.ctrl.reset()
         self.h = 1.0 / self.m.controller.rate_hz
         self._request_streams()
+        if link.autopilot == "ardupilot":
+            self._check_guid_options()  # before the setpoint stream (and a lockstep clock) starts
         wall0 = time.monotonic()
         self.phase = "prearm"
         try:
@@ -225,6 +230,9 @@ class Flight:
             self.yaw = msg.yaw
         elif t == "EXTENDED_SYS_STATE":
             self.landed_state = msg.landed_state
+        elif t == "COMMAND_ACK" and self._held and self.last is not None:
+            self._held = False
+            self._step(self.last)
         elif t == "DEBUG_VECT" and msg.name == TRUE_DIST:
             self.true_dist = np.array([msg.x, msg.y, msg.z])
 
@@ -236,8 +244,16 @@ class Flight:
 
     # --- phases --------------------------------------------------------------------------------
 
+    AWAITED = {"mode": M.MAV_CMD_DO_SET_MODE, "arming": M.MAV_CMD_COMPONENT_ARM_DISARM,
+               "disarming": M.MAV_CMD_COMPONENT_ARM_DISARM}
+
     def _step(self, s):
         ph = self.phase
+        if self.lockstep and ph in self.AWAITED and self.AWAITED[ph] not in self.link.acks:
+            # lockstep: the vehicle's clock stands still until the command is answered, so the
+            # flight does not depend on how fast the answer travels (same seed, same flight)
+            self._held = True
+            return
         if ph in ("prearm", "mode", "arming", "disarming", "landing"):
             self._send(s.t, level_quat(self.yaw), 0.0 if ph != "landing" else self._setpoint[1])
             if ph == "prearm":
@@ -279,8 +295,6 @@ class Flight:
             return
         if s.t - self._phase_t0 < 0.3:  # setpoints must be streaming before OFFBOARD
             return
-        if self.link.autopilot == "ardupilot":
-            self._check_guid_options()
         self._request_mode()
         self._enter("mode", s)
 
@@ -291,7 +305,7 @@ class Flight:
             self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
 
     def _check_guid_options(self):
-        opts = int(self.link.param_read("GUID_OPTIONS", idle=self._keepalive))
+        opts = int(self.link.param_read("GUID_OPTIONS"))
         if opts & 8:
             return
         if not self.m.safety.set_guid_options:
@@ -299,19 +313,10 @@ class Flight:
                 "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust would be "
                 "read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the vehicle, or put "
                 "'set_guid_options: true' under safety: in the mission to let mavadrc set it")
-        got = int(self.link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32,
-                                      idle=self._keepalive))
+        got = int(self.link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32))
         if not got & 8:
             raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
         self.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
-
-    def _keepalive(self):
-        """While waiting for a parameter, keep the setpoint stream (and a lockstep clock) going."""
-        if self.last is not None and self.link.conn is not None:
-            now = time.monotonic()
-            if now - self._ka >= self.h:
-                self._ka = now
-                self._send(self.last.t, level_quat(self.yaw), 0.0)
 
     def _retry(self, resend, what):
         ack_wait = 1.0
@@ -478,11 +483,23 @@ class Flight:
             self._hb_wall = now
             self.link.send_heartbeat()
         waiting = self.phase in ("prearm", "mode", "arming", "disarming")
-        if waiting and (self._last_sample_wall is None or now - self._last_sample_wall > 0.2):
+        quiet = 0.2 if not self.lockstep else (2.0 if self._last_sample_wall is not None else 0.0)
+        if self._held and now - self._cmd_sent_wall > 1.0:  # unanswered: ask again
+            self._tries += 1
+            if self._tries >= 3:
+                raise FlightError(f"{self.phase}: no answer from the vehicle after 3 tries")
+            self._cmd_sent_wall = now
+            if self.phase == "mode":
+                self._request_mode()
+            else:
+                self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM,
+                                  1 if self.phase == "arming" else 0)
+        if waiting and not self._held and (self._last_sample_wall is None
+                                           or now - self._last_sample_wall > quiet):
             # no fresh telemetry while waiting on the vehicle: an idle setpoint now and then
             # keeps a lockstep vehicle's clock going (a real autopilot ignores it outside
             # offboard, and streams telemetry regardless)
-            if now - self._kick_wall >= 0.1:
+            if now - self._kick_wall >= (0.1 if not self.lockstep else 2.0):
                 self._kick_wall = now
                 self._send(0.0 if self.last is None else self.last.t, level_quat(self.yaw), 0.0)
             if self.phase == "prearm":

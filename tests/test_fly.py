@@ -65,6 +65,18 @@ def test_adrc_rejects_the_wind_better_than_pd(tmp_path):
     assert lad["after_settle"]["rms_error_m"] * 3 < pd["after_settle"]["rms_error_m"]
 
 
+def test_lockstep_flights_are_identical_for_the_same_seed(tmp_path):
+    """Turbulence included: the controller table of two flights matches byte for byte."""
+    path = tmp_path / "gusty.yaml"
+    path.write_text((MISSIONS / "hover.yaml").read_text() + "wind: moderate_gusts\nsim: {seed: 5}\n")
+    mission = load_mission(path)
+    _, a = fly_quiet(mission, tmp_path / "a")
+    _, b = fly_quiet(mission, tmp_path / "b")
+    assert (a / "controller.csv").read_bytes() == (b / "controller.csv").read_bytes()
+    _, c = fly_quiet(mission, tmp_path / "c", seed=6)
+    assert (a / "controller.csv").read_bytes() != (c / "controller.csv").read_bytes()
+
+
 def test_the_record_holds_every_setpoint_and_the_estimates(tmp_path):
     mission = load_mission(MISSIONS / "hover.yaml")
     summary, folder = fly_quiet(mission, tmp_path)
