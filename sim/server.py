@@ -26,6 +26,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from . import personality as PP
+from . import physics as phys
 from . import wind as W
 
 log = logging.getLogger("mavadrc.sitl")
@@ -552,7 +553,7 @@ class SitlServer:
                 ms, lat, lon, int(round(alt * 1000)), int(round(-p[2] * 1000)),
                 int(round(vel[0] * 100)), int(round(vel[1] * 100)), int(round(vel[2] * 100)), hdg)
         if mid == M.MAVLINK_MSG_ID_ODOMETRY:
-            R = _rotmat(q)
+            R = phys.rotation_matrix(q)
             vb = R.T @ vel
             nan21 = [math.nan] * 21
             return M.MAVLink_odometry_message(
@@ -1033,7 +1034,7 @@ class SitlServer:
         if turb > 0.0:
             parts.append(W.DrydenTurbulence(w20=turb, seed=self.vehicle.seed))
         extra = W.CompositeWind(parts, seed=self.vehicle.seed) if parts else None
-        self.vehicle.wind = LayeredWind.over(self._base_wind, extra)
+        self.vehicle.wind = W.LayeredWind.over(self._base_wind, extra)
         self.statustext(mavlink.MAV_SEVERITY_INFO,
                         f"Wind {spd:.1f} m/s from {direction:.0f} deg, turbulence {turb:.1f}")
 
@@ -1107,40 +1108,8 @@ class SitlServer:
     }
 
 
-class LayeredWind(W.Wind):
-    """The configured wind plus the ground station's SIM_WIND_* layer, without reseeding either."""
-
-    def __init__(self, base, extra):
-        self.base = base
-        self.extra = extra
-
-    @classmethod
-    def over(cls, base, extra):
-        if extra is None:
-            return base
-        if base is None:
-            return extra
-        return cls(base, extra)
-
-    def mean(self, position):
-        return self.base.mean(position) + self.extra.mean(position)
-
-    def step(self, t, dt, position, velocity):
-        v1, f1, m1 = self.base.step(t, dt, position, velocity)
-        v2, f2, m2 = self.extra.step(t, dt, position, velocity)
-        return v1 + v2, f1 + f2, m1 + m2
-
-
 def _near(x, value):
     return math.isfinite(x) and abs(x - value) < 0.5
-
-
-def _rotmat(q):
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def read_signing_key(path):

@@ -451,6 +451,31 @@ class CompositeWind(Wind):
         return v, f, tau
 
 
+class LayeredWind(Wind):
+    """Two winds summed without reseeding either (CompositeWind reseeds its parts): how the
+    vehicle's server lays a ground station's SIM_WIND_* wind over the configured one in flight."""
+
+    def __init__(self, base, extra):
+        self.base = base
+        self.extra = extra
+
+    @classmethod
+    def over(cls, base, extra):
+        if extra is None:
+            return base
+        if base is None:
+            return extra
+        return cls(base, extra)
+
+    def mean(self, position):
+        return self.base.mean(position) + self.extra.mean(position)
+
+    def step(self, t, dt, position, velocity):
+        v1, f1, m1 = self.base.step(t, dt, position, velocity)
+        v2, f2, m2 = self.extra.step(t, dt, position, velocity)
+        return v1 + v2, f1 + f2, m1 + m2
+
+
 def _vector_or_heading(sec: Section, key: str) -> np.ndarray:
     """``key`` as an NED vector [n, e, d], or a number with direction_from_deg (and vertical)."""
     if sec.has(key) and isinstance(sec.data[key], list):
