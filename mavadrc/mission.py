@@ -103,7 +103,7 @@ class Mission:
 
 
 class Shifted(T.Trajectory):
-    """A trajectory moved by a constant NED offset (the takeoff spot)."""
+    """A trajectory moved by a constant NED offset (the takeoff spot, a spiral's centre)."""
 
     def __init__(self, inner, offset):
         self.inner = inner
@@ -145,10 +145,11 @@ def _segment(kind, s, here, m):
                           duration=s.get("duration", math.inf) if "laps" not in s else math.inf,
                           laps=s.get("laps")), "circle")]
     if kind == "spiral":
-        return [(Centered(T.Spiral(radius=s.get("radius", 10.0), omega=s.get("omega", 0.5),
-                                   z0=s.get("z0", 1.0), climb=s.get("climb", 0.1),
-                                   yaw=_yaw(s, math.pi / 6), duration=s["duration"]),
-                          s.get("center", (0.0, 0.0))), "spiral")]
+        center = s.get("center", (0.0, 0.0))
+        return [(Shifted(T.Spiral(radius=s.get("radius", 10.0), omega=s.get("omega", 0.5),
+                                  z0=s.get("z0", 1.0), climb=s.get("climb", 0.1),
+                                  yaw=_yaw(s, math.pi / 6), duration=s["duration"]),
+                         (center[0], center[1], 0.0)), "spiral")]
     if kind == "figure_eight":
         return [(T.FigureEight(s["a"], s["period"], s.get("altitude", alt_here),
                                center=tuple(s.get("center", (0.0, 0.0))), yaw=_yaw(s, None),
@@ -204,19 +205,6 @@ class Transit(T.Trajectory):
         yaw = self.yaw0 + self.dyaw * smooth
         yaw_rate = self.dyaw * 6 * u * (1 - u) / Tn
         return pos, vel, acc, yaw, yaw_rate
-
-
-class Centered(T.Trajectory):
-    """A trajectory whose horizontal origin is moved to ``center`` (north, east)."""
-
-    def __init__(self, inner, center):
-        self.inner = inner
-        self.offset = np.array([float(center[0]), float(center[1]), 0.0])
-        self.duration = inner.duration
-
-    def _eval(self, t):
-        pos, vel, acc, yaw, yaw_rate = self.inner.sample_many(t)
-        return pos + self.offset, vel, acc, yaw, yaw_rate
 
 
 class Truncated(T.Trajectory):
