@@ -174,14 +174,26 @@ class TrackingDifferentiator:
         return self._s[K.S_V1], self._s[K.S_V2]
 
 
-class _Observer:
+def _estimates(self):
+    """(z1, z2, z3): the observer's output, rate and total-disturbance estimates."""
+    return self._s[K.S_Z1], self._s[K.S_Z2], self._s[K.S_Z3]
+
+
+class _Held:
+    """Holder of a kernel state vector ``_s`` and parameter vector ``_p``."""
+
     __slots__ = ("_s", "_p")
 
     def reset(self, y0=None):
-        """Forget the estimates; start at z1 = y0 (or at the next measurement), z2 = z3 = 0."""
+        """Start again: at y0 now (z1 = y0, z2 = z3 = 0), or from the next measurement
+        (anti-peaking initialisation)."""
         self._s[:] = 0.0
         if y0 is not None:
             K.channel_init(self._s, check_finite("y0", y0), 0.0, 0.0)
+
+
+class _Observer(_Held):
+    __slots__ = ()
 
     def update(self, y, u):
         """Correct with measurement ``y``; ``u`` is the input applied over the last step."""
@@ -189,10 +201,7 @@ class _Observer:
             raise nonfinite_error(y=y, u=u)
         return self._s[K.S_Z1], self._s[K.S_Z2], self._s[K.S_Z3]
 
-    @property
-    def z(self):
-        """(z1, z2, z3): output, rate and total-disturbance estimates."""
-        return self._s[K.S_Z1], self._s[K.S_Z2], self._s[K.S_Z3]
+    z = property(_estimates)
 
 
 class HanESO(_Observer):
@@ -232,8 +241,8 @@ class LinearESO(_Observer):
         return self._p[K.P_L1], self._p[K.P_L2], self._p[K.P_L3]
 
 
-class _Channel:
-    __slots__ = ("_s", "_p")
+class _Channel(_Held):
+    __slots__ = ()
 
     def update(self, y, r, rdot=0.0, rddot=0.0):
         """One step: measurement y, reference r with its derivatives; returns the limited u."""
@@ -241,12 +250,6 @@ class _Channel:
         if u != u:
             raise nonfinite_error(y=y, r=r, rdot=rdot, rddot=rddot)
         return u
-
-    def reset(self, y0=None):
-        """Start again: at y0 now, or from the next measurement (anti-peaking initialisation)."""
-        self._s[:] = 0.0
-        if y0 is not None:
-            K.channel_init(self._s, check_finite("y0", y0), 0.0, 0.0)
 
     def set_applied_input(self, u):
         """Tell the observer what was really applied when something downstream limited u further."""
@@ -281,10 +284,7 @@ class _Channel:
 
 
 class _ObservedChannel(_Channel):
-    @property
-    def z(self):
-        """(z1, z2, z3): the observer's output, rate and total-disturbance estimates."""
-        return self._s[K.S_Z1], self._s[K.S_Z2], self._s[K.S_Z3]
+    z = property(_estimates)
 
 
 class LinearADRC(_ObservedChannel):
