@@ -17,9 +17,9 @@ from .control import PD, AttitudeController, HanADRC, LinearADRC, PositionContro
 from .embedded import free_udp_port
 
 
-def per_call_us(fn, calls=2000, repeats=25):
-    """Median over ``repeats`` blocks of the mean time of one call, in microseconds."""
-    return median_us(fn, calls, repeats)
+def per_call_us(fn):
+    """Median over 25 blocks of 2000 calls of the mean time of one call, in microseconds."""
+    return median_us(fn, 2000, 25)
 
 
 def control_figures():

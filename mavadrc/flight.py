@@ -59,7 +59,7 @@ def default_gains(kind):
 
 def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None):
     kind = kind or spec.kind
-    gains = dict(default_gains(kind)) if kind != spec.kind or not spec.gains else {}
+    gains = default_gains(kind)  # the mission's gains, where given, override these
     if kind == spec.kind:
         gains.update(spec.gains)
     if kind == "pd" and "kp" in gains and "wc" in gains:

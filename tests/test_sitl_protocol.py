@@ -21,24 +21,24 @@ HOLD = px4_mode(4, 3)
 OFFBOARD = px4_mode(6)
 
 
-@pytest.fixture
-def px4():
-    srv, port = start_vehicle("px4")
+def connected(autopilot):
+    """A running vehicle of this personality and a client that has heard its heartbeat."""
+    srv, port = start_vehicle(autopilot)
     c = Client(port)
     c.heartbeat()
     yield srv, c
     c.close()
     srv.stop()
+
+
+@pytest.fixture
+def px4():
+    yield from connected("px4")
 
 
 @pytest.fixture
 def ardupilot():
-    srv, port = start_vehicle("ardupilot")
-    c = Client(port)
-    c.heartbeat()
-    yield srv, c
-    c.close()
-    srv.stop()
+    yield from connected("ardupilot")
 
 
 def test_heartbeat_identity_px4(px4):
