@@ -11,8 +11,9 @@
 Every physics step (``physics_dt``, 1 kHz by default) the wind is sampled, the firmware's inner
 loop (attitude control + mixer, :mod:`sim.firmware.attitude`) runs (every step, or every k-th with
 ``attitude_rate_hz``) and the rigid body advances one RK4 step.  The position loop, the flight
-modes and the land detector run at ``position_rate_hz``.  Without wind and sensor models the
-steps between two position-loop ticks run in one compiled call.  The same seed gives the same
+modes and the land detector run at ``position_rate_hz``.  Without a sensor model the steps between
+two position-loop ticks run in one compiled call, wind included when it has a compiled form
+(:func:`sim.wind.pack_wind`: the bundled wind files all do).  The same seed gives the same
 flight, however the time is cut into ``step`` calls.
 """
 
@@ -30,7 +31,7 @@ from .firmware import position as PL
 from .firmware.mixer import Mixer
 from .params import VehicleParams, load_vehicle
 from .sensors import Sensors
-from .wind import Wind, load_wind
+from .wind import Wind, load_wind, pack_wind, wind_step_packed
 
 MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
 
@@ -68,6 +69,21 @@ def advance(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, v_wind, f_ext, tau_ex
     """
     for k in range(n):
         t = tick + k
+        if t % pos_div == 0:
+            PL.land_detect(fs, fp, sp[A.SP_THRUST], xm[3:6], pos_dt)
+        if t % att_div == 0:
+            A.inner_step(fs, fp, S, P, W, mx, xm, sp, omega, wk)
+        phys.step(x, omega, pv, v_wind, f_ext, tau_ext, dt)
+
+
+@jit
+def advance_wind(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
+                 tau_ext, dt, n, tick, att_div, pos_div, pos_dt):
+    """:func:`advance` with a packed wind (:func:`sim.wind.pack_wind`) evaluated every step at
+    the step's start; ``eta`` holds the Dryden normals of these n steps, row by row."""
+    for k in range(n):
+        t = tick + k
+        wind_step_packed(wp, dstate, eta, k, t * dt, dt, x, v_wind, f_ext, tau_ext)
         if t % pos_div == 0:
             PL.land_detect(fs, fp, sp[A.SP_THRUST], xm[3:6], pos_dt)
         if t % att_div == 0:
@@ -174,6 +190,8 @@ class SimVehicle:
             raise ValueError(f"physics_dt must be > 0 (got {physics_dt!r})")
         self.seed = seed
         wind_seed, sensor_seed = child_seeds(seed)
+        self._wind = None
+        self._packed = None
         self.wind = resolve_wind(wind, wind_seed)
         if isinstance(sensors, dict):
             sensors = Sensors(**sensors, seed=sensor_seed)
@@ -220,6 +238,17 @@ class SimVehicle:
         self._measure()
 
     # -- read-outs -------------------------------------------------------------------------------
+    @property
+    def wind(self):
+        """The wind model (a :class:`sim.wind.Wind` or None); assigning one takes effect at the
+        next step."""
+        return self._wind
+
+    @wind.setter
+    def wind(self, model):
+        self._wind = model
+        self._packed = pack_wind(model)
+
     @property
     def time(self):
         """Seconds since boot (simulated)."""
@@ -393,7 +422,8 @@ class SimVehicle:
         self._target_time += float(dt)
         end = int(math.floor(self._target_time / self.physics_dt + 1e-6))
         fw = self.fw
-        per_step = self.wind is not None or self.sensors is not None
+        packed = self._packed
+        per_step = (self.wind is not None and packed is None) or self.sensors is not None
         while self._tick < end:
             tick = self._tick
             if per_step:
@@ -401,6 +431,15 @@ class SimVehicle:
             if tick % fw.pos_div == 0:
                 self._outer()
             n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
+            if packed is not None:
+                xm = self._xm if self.sensors is not None else self._x
+                advance_wind(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx,
+                             self._sp, self._omega, self._wk, self._pv, packed.params,
+                             packed.state, packed.normals(n), self._v_wind, self._f_ext,
+                             self._tau_ext, self.physics_dt, n, tick, fw.att_div, fw.pos_div,
+                             fw.pos_dt)
+                self._tick += n
+                continue
             if self.wind is not None:
                 t = tick * self.physics_dt
                 v, f, tau = self.wind.step(t, self.physics_dt, self._x[0:3], self._x[3:6])

@@ -31,7 +31,7 @@ from sim.yamlio import Section, config_path, load_yaml
 __all__ = [
     "Wind", "ConstantWind", "DrydenTurbulence", "OneMinusCosineGust", "SinusoidWind",
     "ThesisWind", "CompositeWind", "load_wind", "wind_vector", "dryden_scales",
-    "DRYDEN_W20", "KNOT", "FOOT",
+    "DRYDEN_W20", "KNOT", "FOOT", "PackedWind", "pack_wind", "wind_step_packed",
 ]
 
 KNOT = 0.514444          # m/s
@@ -561,3 +561,190 @@ def load_wind(path_or_mapping: str | Path | dict[str, Any], seed: int | None = 0
     wind = parts[0] if single else CompositeWind(parts)
     wind.reset(seed)
     return wind
+
+
+# ---------------------------------------------------------------------------------------------
+# Compiled form
+# ---------------------------------------------------------------------------------------------
+# The common winds (at most one constant part, at most one Dryden part taking its mean from it,
+# any number of gusts and sinusoids, the thesis's constant forces) pack into one float vector that
+# a compiled loop evaluates per physics step with exactly the formulas above.  The Dryden part's
+# unit normals still come from its numpy Generator, drawn ahead in blocks by the caller: the
+# stream is the same whether it is drawn one row or a thousand rows at a time.
+
+WP_MEAN = 0        # horizontal mean wind x, y (m/s)
+WP_MEAN_Z = 2      # vertical air velocity, NED (-updraft)
+WP_PROFILE = 3     # 0 none, 1 sqrt60, 2 log
+WP_REF_H = 4
+WP_ROUGH = 5
+WP_DRYDEN = 6      # 1.0 if a Dryden part is present
+WP_W20 = 7
+WP_VMIN = 8
+WP_FORCE = 9       # f_ext (3, world N) and tau_ext (3, body N m), constant
+WP_NGUST = 15
+WP_NSINE = 16
+WP_ITEMS = 17      # gusts: [ax, ay, az, t_start, t_rise, t_hold]; then sines: [ax, ay, az, f, phase]
+GUST_SIZE = 6
+SINE_SIZE = 5
+
+
+class PackedWind:
+    """A wind model in compiled form: ``params`` for :func:`wind_step_packed`, and the Dryden
+    part (its ``state`` is advanced in place, its generator supplies the normals) or None."""
+
+    def __init__(self, params, dryden):
+        self.params = params
+        self.dryden = dryden
+
+    def normals(self, n):
+        """The next n rows of unit normals the Dryden part would draw ((n, 5); empty if none)."""
+        if self.dryden is None:
+            return np.zeros((n, 5))
+        return self.dryden._rng.standard_normal((n, 5))
+
+    @property
+    def state(self):
+        return self.dryden.state if self.dryden is not None else np.zeros(5)
+
+
+def pack_wind(wind):
+    """:class:`PackedWind` for ``wind``, or None when its structure has no compiled form (the
+    per-step Python path then runs it, with the same physics)."""
+    if wind is None:
+        return None
+    parts = wind.parts if type(wind) is CompositeWind else [wind]
+    consts, dry, gusts, sines, forces = [], [], [], [], []
+    for part in parts:
+        kind = type(part)
+        if kind is ConstantWind:
+            consts.append(part)
+        elif kind is DrydenTurbulence:
+            dry.append(part)
+        elif kind is OneMinusCosineGust:
+            gusts.append(part)
+        elif kind is SinusoidWind:
+            sines.append(part)
+        elif kind is ThesisWind:
+            forces.append(part)
+        elif kind is Wind:
+            continue
+        else:
+            return None
+    if len(consts) > 1 or len(dry) > 1:
+        return None
+    if dry and dry[0].mean_wind is not None and (not consts or dry[0].mean_wind is not consts[0]):
+        return None
+    wp = np.zeros(WP_ITEMS + GUST_SIZE * len(gusts) + SINE_SIZE * len(sines))
+    if consts:
+        c = consts[0]
+        wp[WP_MEAN:WP_MEAN + 2] = c._horizontal[0:2]
+        wp[WP_MEAN_Z] = -c.vertical
+        wp[WP_PROFILE] = ConstantWind.PROFILES.index(c.profile)
+        wp[WP_REF_H] = c.ref_height
+        wp[WP_ROUGH] = c.roughness
+    if dry:
+        d = dry[0]
+        wp[WP_DRYDEN] = 1.0
+        wp[WP_W20] = d._w20
+        wp[WP_VMIN] = d.v_min
+        if d.mean_wind is None:  # the Dryden's axes and advection then ignore the constant part
+            if consts:
+                return None
+    for f in forces:
+        _, fe, te = f.step(0.0, 0.0, np.zeros(3), np.zeros(3))
+        wp[WP_FORCE:WP_FORCE + 3] += fe
+        wp[WP_FORCE + 3:WP_FORCE + 6] += te
+    wp[WP_NGUST] = len(gusts)
+    wp[WP_NSINE] = len(sines)
+    k = WP_ITEMS
+    for g in gusts:
+        wp[k:k + 3] = g.amplitude
+        wp[k + 3:k + 6] = (g.t_start, g.t_rise, g.t_hold)
+        k += GUST_SIZE
+    for s in sines:
+        wp[k:k + 3] = s.amplitude
+        wp[k + 3:k + 5] = (s.freq, s.phase)
+        k += SINE_SIZE
+    return PackedWind(wp, dry[0] if dry else None)
+
+
+@njit(cache=True, error_model="numpy")
+def _profile_scale(wp, altitude):
+    prof = wp[WP_PROFILE]
+    if prof == 1.0:
+        return math.sqrt(min(max(altitude, 0.0), 60.0) / 60.0)
+    if prof == 2.0:
+        if altitude <= wp[WP_ROUGH]:
+            return 0.0
+        return math.log(altitude / wp[WP_ROUGH]) / math.log(wp[WP_REF_H] / wp[WP_ROUGH])
+    return 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def _gust_factor(s, t_rise, t_hold):
+    if s <= 0.0:
+        return 0.0
+    if s < t_rise:
+        return 0.5 * (1.0 - math.cos(math.pi * s / t_rise))
+    s -= t_rise
+    if s <= t_hold:
+        return 1.0
+    s -= t_hold
+    if s < t_rise:
+        return 0.5 * (1.0 + math.cos(math.pi * s / t_rise))
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out):
+    """The packed wind over [t, t + dt] for state x (position x[0:3], velocity x[3:6]):
+    writes v_out, f_out, tau_out as :meth:`Wind.step` returns them; ``eta[k]`` is the Dryden
+    part's row of normals for this step."""
+    alt = max(-x[2], 0.0)
+    sc = _profile_scale(wp, alt)
+    mx = wp[WP_MEAN] * sc
+    my = wp[WP_MEAN + 1] * sc
+    mz = wp[WP_MEAN_Z]
+    v_out[0] = mx
+    v_out[1] = my
+    v_out[2] = mz
+    if wp[WP_DRYDEN] != 0.0:
+        h = min(max(alt / FOOT, 10.0), 1000.0)
+        kk = 0.177 + 0.000823 * h
+        sigma_w = 0.1 * wp[WP_W20]
+        sig_u = sigma_w / kk ** 0.4
+        l_u = h / kk ** 1.2 * FOOT
+        l_w = h * FOOT
+        rx = mx - x[3]
+        ry = my - x[4]
+        rz = mz - x[5]
+        travel = max(math.sqrt(rx * rx + ry * ry + rz * rz), wp[WP_VMIN]) * dt
+        horizontal = math.hypot(mx, my)
+        if horizontal > 1e-9:
+            ux = mx / horizontal
+            uy = my / horizontal
+        else:
+            ux = 1.0
+            uy = 0.0
+        out = np.empty((1, 3))
+        _dryden_run(dstate, eta[k:k + 1], travel / l_u, travel / l_u, travel / l_w, sig_u, sig_u,
+                    sigma_w, ux, uy, out)
+        v_out[0] += out[0, 0]
+        v_out[1] += out[0, 1]
+        v_out[2] += out[0, 2]
+    j = WP_ITEMS
+    for _ in range(int(wp[WP_NGUST])):
+        fac = _gust_factor(t - wp[j + 3], wp[j + 4], wp[j + 5])
+        v_out[0] += wp[j] * fac
+        v_out[1] += wp[j + 1] * fac
+        v_out[2] += wp[j + 2] * fac
+        j += GUST_SIZE
+    for _ in range(int(wp[WP_NSINE])):
+        s = math.sin(2.0 * math.pi * wp[j + 3] * t + wp[j + 4])
+        v_out[0] += wp[j] * s
+        v_out[1] += wp[j + 1] * s
+        v_out[2] += wp[j + 2] * s
+        j += SINE_SIZE
+    for i in range(3):
+        f_out[i] = wp[WP_FORCE + i]
+        tau_out[i] = wp[WP_FORCE + 3 + i]
