@@ -96,7 +96,8 @@ class Flight:
     CUT_S = 0.5  # thrust ramp down after touchdown
 
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
-                 out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0, lockstep=False):
+                 out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0, lockstep=False,
+                 start_at=None):
         self.m = mission
         self.link = link
         self.rec = record
@@ -107,6 +108,9 @@ class Flight:
         self.max_wall_s = max_wall_s
         self.heartbeat_timeout = heartbeat_timeout
         self.lockstep = lockstep
+        # vehicle time (s) at which the mission clock starts, the thrust spooled up over the
+        # SPOOL_S before it (experiments: every run starts at the same time); None: at once
+        self.start_at = start_at
         self._held = False
         # a lockstep vehicle cannot move on without us, so a slow answer (a machine busy
         # compiling) is not a lost link; give it longer before calling telemetry stale
@@ -127,6 +131,7 @@ class Flight:
         self.rows_t, self.rows_ref, self.rows_pos = [], [], []
         self.ctrl = None
         self.traj = None
+        self.mission_start = None
         self.phases = []
         self._phase_t0 = None
         self._last_print = 0.0
@@ -267,9 +272,18 @@ class Flight:
             elif ph == "landing":
                 self._landing(s)
         elif ph == "spoolup":
-            k = min(1.0, (s.t - self._phase_t0) / self.SPOOL_S)
+            if self.start_at is None:
+                k = min(1.0, (s.t - self._phase_t0) / self.SPOOL_S)
+                start = k >= 1.0
+            else:
+                if s.t > self.start_at - self.SPOOL_S + 1e-9 and self._phase_t0 > \
+                        self.start_at - self.SPOOL_S + 1e-9:
+                    raise FlightError(f"armed at {self._phase_t0:.3f} s, too late to start the "
+                                      f"mission at {self.start_at:.3f} s")
+                k = min(1.0, max(0.0, (s.t - (self.start_at - self.SPOOL_S)) / self.SPOOL_S))
+                start = s.t >= self.start_at - 1e-9
             self._send(s.t, level_quat(self.yaw), 0.8 * self.hover * k)
-            if k >= 1.0:
+            if start:
                 self._start_mission(s)
         elif ph == "mission":
             self._mission_step(s)
@@ -359,6 +373,7 @@ class Flight:
         self._grid = self.traj.sample_many(np.arange(n) * self.h)
         self.ctrl.reset(s.pos)
         self._mission_t0 = s.t
+        self.mission_start = s.t
         self.say(f"flying {self.m.name!r} with {self.kind} ({self.traj.duration:.1f} s)")
         self._enter("mission", s)
 
@@ -395,6 +410,13 @@ class Flight:
         if self._breach(s):
             return
         if t >= self.traj.duration:
+            if not self.m.ends_landed:
+                # the mission ends in the air (an experiment run): the autopilot lands it
+                self.say("mission complete in the air: handing over to the autopilot's land mode")
+                self.link.command(M.MAV_CMD_NAV_LAND)
+                self._land_cmd_wall = time.monotonic()
+                self.phase = "landing"
+                return
             self._cut_from = thrust
             self._enter("touchdown", s)
         self._progress(t, r, s)
@@ -569,6 +591,7 @@ class Flight:
             "missed_periods": self.missed,
             "rate_hz": self.m.controller.rate_hz,
             "settle_s": self.m.settle_s,
+            "mission_start_s": self.mission_start,
             "vehicle_messages": self.texts[-50:],
         }
         if self.latency:

@@ -18,7 +18,7 @@ def record_folder(out, mission, kind):
 
 
 def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None, wind=None,
-        figures=True, progress=True, timeout=None, stream=sys.stdout):
+        figures=True, progress=True, timeout=None, stream=sys.stdout, start_at=None):
     """Fly ``mission`` (a :class:`~mavadrc.mission.Mission`); returns (summary, record folder)."""
     kind = kind or mission.controller.kind
     folder = record_folder(out or mission.out, mission, kind)
@@ -42,7 +42,8 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
         link = Link(url, tlog=rec.tlog)
         flight = Flight(mission, link, rec, kind=kind, progress=progress, out=stream,
                         max_wall_s=timeout, lockstep=lockstep and connect is None,
-                        heartbeat_timeout=15.0 if vehicle is None else 120.0)
+                        heartbeat_timeout=15.0 if vehicle is None else 120.0,
+                        start_at=start_at)
         summary = flight.run()
     finally:
         if link is not None:

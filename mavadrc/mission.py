@@ -74,6 +74,11 @@ class Mission:
     out: str = "runs"
     transit_speed: float = 1.0
 
+    @property
+    def ends_landed(self):
+        """Whether the trajectory ends with a land (else the autopilot lands after it)."""
+        return bool(self.segments) and self.segments[-1][0] == "land"
+
     def build_trajectory(self, origin=(0.0, 0.0, 0.0)):
         """The mission's reference as one trajectory, offset to ``origin`` (NED of the takeoff
         spot); returns (trajectory, [(start_time, segment name)])."""
@@ -292,9 +297,9 @@ def _read_segment(sec):
     return kind, spec, inner
 
 
-def _read_controller(sec):
+def _read_controller(sec, kinds=None, finish=True):
     c = ControllerSpec()
-    c.kind = sec.string("type", "ladrc", choices=KINDS)
+    c.kind = sec.string("type", "ladrc", choices=kinds or KINDS)
     c.rate_hz = sec.number("rate_hz", 100.0, gt=0.0, le=1000.0)
     c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
     c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
@@ -309,7 +314,8 @@ def _read_controller(sec):
         c.gains["td"] = sec.boolean("td")
     if sec.has("eso_gains"):
         c.gains["eso_gains"] = sec.string("eso_gains", choices=("han", "thesis"))
-    sec.finish()
+    if finish:
+        sec.finish()
     return c
 
 
@@ -340,8 +346,17 @@ def load_mission(path):
     path = config_path(path, "missions") if not Path(str(path)).exists() else Path(path)
     text = Path(path).read_text()
     data = load_yaml(path, text=text)
-    top = Section(data, str(path))
-    m = Mission(name=top.string("name", Path(path).stem), source=str(path), text=text,
+    return mission_from_section(Section(data, str(path)), str(path), text, Path(path).stem)
+
+
+def mission_from_section(top, source, text, default_name="mission", require_land=True,
+                         controller=True):
+    """A :class:`Mission` from a YAML section (a mission file, or an experiment's scenario).
+
+    ``require_land``: the last segment must be a land (experiment runs may end in the air);
+    ``controller``: whether a ``controller:`` key is read here.
+    """
+    m = Mission(name=top.string("name", default_name), source=source, text=text,
                 segments=[], controller=ControllerSpec(), safety=Safety())
     if top.has("vehicle"):
         v = top.raw("vehicle")
@@ -363,8 +378,9 @@ def load_mission(path):
             if m.mass is not None and m.max_thrust is not None and m.max_thrust <= m.mass * 9.80665:
                 vs.error("max_thrust", f"must exceed the weight ({m.mass * 9.80665:.3g} N)")
             vs.finish()
-    m.controller = _read_controller(top.section("controller")) if top.has("controller") \
-        else ControllerSpec()
+    if controller:
+        m.controller = _read_controller(top.section("controller")) if top.has("controller") \
+            else ControllerSpec()
     segs = top.sections("trajectory")
     if not segs:
         top.error("trajectory", "must list at least one segment")
@@ -374,7 +390,7 @@ def load_mission(path):
         m.segments.append((kind, spec, inner))
     if m.segments[0][0] != "takeoff":
         segs[0].error(None, "the first segment must be a takeoff (missions start on the ground)")
-    if m.segments[-1][0] != "land":
+    if require_land and m.segments[-1][0] != "land":
         segs[-1].error(None, "the last segment must be a land")
     if top.has("wind"):
         m.wind = top.raw("wind")

@@ -236,6 +236,24 @@ def step(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt):
 
 
 @njit(cache=True, error_model="numpy")
+def disturbance_accel(x, omega_cmd, P, v_wind, f_ext, tau_ext, out):
+    """Acceleration (NED, m/s^2) the environment adds beyond rotor thrust and gravity: drag on
+    the air-relative velocity, rotor drag and direct forces, over the mass, at state x."""
+    xdot = np.empty(NX)
+    derivatives(x, omega_cmd, P, v_wind, f_ext, tau_ext, xdot)
+    thrust = 0.0
+    for i in range(4):
+        w = x[IX_ROT + i]
+        thrust += w * w
+    thrust *= P[P_KF] / P[P_MASS]
+    qw, qx, qy, qz = x[IX_Q], x[IX_Q + 1], x[IX_Q + 2], x[IX_Q + 3]
+    # third column of R(q): body z in NED
+    out[0] = xdot[3] + 2.0 * (qx * qz + qw * qy) * thrust
+    out[1] = xdot[4] + 2.0 * (qy * qz - qw * qx) * thrust
+    out[2] = xdot[5] - GRAVITY + (1.0 - 2.0 * (qx * qx + qy * qy)) * thrust
+
+
+@njit(cache=True, error_model="numpy")
 def step_n(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt, n):
     """Advance x in place by n RK4 steps of dt with all inputs held."""
     ws = np.empty((5, NX))

@@ -318,16 +318,9 @@ class SimVehicle:
         direct wind forces, divided by the mass, at the current state with the wind of the last
         step.  This is what a position-loop observer's disturbance estimate should approach.
         """
-        xdot = np.empty(phys.NX)
-        phys.derivatives(self._x, self._omega, self._pv, self._v_wind, self._f_ext,
-                         self._tau_ext, xdot)
-        vp = self.params
-        w = self._x[phys.IX_ROT:phys.IX_ROT + 4]
-        thrust = vp.k_f * float(np.sum(w * w))
-        R = phys.rotation_matrix(self._x[phys.IX_Q:phys.IX_Q + 4])
-        a = xdot[3:6].copy()
-        a[2] -= phys.GRAVITY
-        a += R[:, 2] * thrust / vp.mass
+        a = np.empty(3)
+        phys.disturbance_accel(self._x, self._omega, self._pv, self._v_wind, self._f_ext,
+                               self._tau_ext, a)
         return a
 
     # -- commands --------------------------------------------------------------------------------

@@ -1,0 +1,260 @@
+"""The in-process fast path: a mission flown on the bundled vehicle's kernels, no sockets.
+
+This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink flight of
+:mod:`mavadrc.flight` against ``python -m sim --lockstep``, with the wire taken out:
+
+* the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware);
+* the same timeline: on the ground until armed, the thrust spooled up over
+  :attr:`Flight.SPOOL_S <mavadrc.flight.Flight.SPOOL_S>`, the mission clock started at
+  :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side);
+* one control step per LOCAL_POSITION_NED sample, the reference read as the flight reads it, and
+  every value that crosses the wire rounded to the float32 MAVLink carries (position, velocity,
+  the setpoint quaternion and thrust, the millisecond boot time);
+* the same position controller (:func:`mavadrc.control.position.position_update`) and the same
+  safety checks (geofence, altitude, speed: the run stops there, as the flight hands over to the
+  autopilot's land mode).
+
+After the spool-up (a hundred Python-level steps) the whole mission runs in one compiled call:
+controller, wind (:func:`sim.wind.pack_wind`), firmware and physics.  ``mavadrc compare --via
+mavlink`` flies the same runs over MAVLink, and a test holds the two paths to 1 mm RMS.
+
+The ``oracle`` controller exists only here: the PD law with the simulator's true disturbance
+acceleration fed forward, the floor any controller with the same feedback gains could reach.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim import physics as phys
+from sim.firmware import attitude as A
+from sim.vehicle import SimVehicle, advance_wind
+from sim.wind import Wind, pack_wind
+
+from .control import geometry as G
+from .control import kernels as K
+from .control._jit import jit
+from .control.position import position_update
+from .flight import Flight, level_quat, make_controller
+
+MISSION_START = 1.0  # s of vehicle time at which every run's mission clock starts
+ARM_AT = 0.35  # s: the fast path arms here (the lockstep flight arms a little earlier or later;
+# on the ground, disarmed or idle, nothing differs by the time the spool-up starts)
+
+# columns of the per-step log
+L_T = 0
+L_REF = 1  # 3
+L_POS = 4  # 3
+L_VEL = 7  # 3
+L_Q = 10  # 4
+L_THRUST = 14
+L_ACC_CMD = 15  # 3
+L_ACC = 18  # 3
+L_Z3 = 21  # 3: observer disturbance estimates
+L_DIST = 24  # 3: the simulator's true disturbance acceleration
+L_WRENCH = 27  # 4: achieved [T, tau_x, tau_y, tau_z] (the thesis's U1..U4)
+L_YAW = 31
+L_REF_YAW = 32
+NLOG = 33
+
+STATUS_OK = 0
+STATUS_BREACH = 1
+STATUS_NONFINITE = 2
+STATUS_NAMES = {STATUS_OK: None, STATUS_BREACH: "safety limit breached",
+                STATUS_NONFINITE: "the controller produced a non-finite setpoint"}
+
+
+def f32(x):
+    """What a float32 MAVLink field carries of x (as float64)."""
+    return np.asarray(x, dtype=np.float32).astype(np.float64)
+
+
+@jit
+def _f32(v):
+    return float(np.float32(v))
+
+
+@jit
+def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
+                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, times, Sc, Pc, Mc, refs,
+                oracle, limits, origin, log):
+    """Fly the mission steps of ``refs`` (N, 10: pos, vel, acc, yaw) from tick ``tick0``.
+
+    Each step: sample (float32), control, setpoint (float32), ``per`` physics steps.  ``limits``
+    = [north lo, hi, east lo, hi, altitude lo, hi, max speed] relative to ``origin``.  Fills
+    ``log`` row by row; returns (rows written, status).
+    """
+    pos = np.empty(3)
+    vel = np.empty(3)
+    rpos = np.empty(3)
+    rvel = np.empty(3)
+    racc = np.empty(3)
+    dist = np.empty(3)
+    out = np.zeros(G.NO + 3)
+    e = np.empty(4)
+    eul = np.empty(3)
+    tick = tick0
+    for j in range(refs.shape[0]):
+        for i in range(3):
+            pos[i] = _f32(x[i])
+            vel[i] = _f32(x[3 + i])
+            rpos[i] = refs[j, i]
+            rvel[i] = refs[j, 3 + i]
+            racc[i] = refs[j, 6 + i]
+        phys.disturbance_accel(x, omega, pv, v_wind, f_ext, tau_ext, dist)
+        if oracle:
+            for i in range(3):
+                racc[i] -= dist[i]
+        ok = position_update(Sc, Pc, Mc, pos, vel, rpos, rvel, racc, refs[j, 9], out)
+        row = log[j]
+        row[L_T] = times[j]
+        for i in range(3):
+            row[L_REF + i] = rpos[i]
+            row[L_POS + i] = pos[i]
+            row[L_VEL + i] = vel[i]
+            row[L_ACC_CMD + i] = out[G.NO + i]
+            row[L_ACC + i] = out[G.O_ACC + i]
+            row[L_Z3 + i] = Sc[i, K.S_Z3]
+            row[L_DIST + i] = dist[i]
+        for i in range(4):
+            e[i] = x[phys.IX_Q + i]
+            row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
+        G.quat_to_euler(e, eul)
+        row[L_YAW] = eul[2]
+        row[L_REF_YAW] = refs[j, 9]
+        if not ok:
+            return j + 1, 2
+        n2 = 0.0
+        for i in range(4):
+            e[i] = _f32(out[G.O_Q + i])
+            row[L_Q + i] = e[i]
+            n2 += e[i] * e[i]
+        thrust = _f32(out[G.O_THRUST])
+        row[L_THRUST] = thrust
+        # the flight's safety checks, on the sample, after logging it
+        north = pos[0] - origin[0]
+        east = pos[1] - origin[1]
+        alt = -(pos[2] - origin[2])
+        speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
+        if not (limits[0] <= north <= limits[1] and limits[2] <= east <= limits[3]) or \
+                alt > limits[5] or alt < limits[4] or speed > limits[6]:
+            return j + 1, 1
+        # what the vehicle does with SET_ATTITUDE_TARGET (attitude + thrust, rates ignored)
+        nq = math.sqrt(n2)
+        for i in range(4):
+            sp[A.SP_Q + i] = e[i] / nq
+        sp[A.SP_ATT_VALID] = 1.0
+        for i in range(3):
+            sp[A.SP_RATE_VALID + i] = 0.0
+            sp[A.SP_RATES + i] = 0.0
+        sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
+        advance_wind(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                     eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt, per,
+                     tick, att_div, pos_div, pos_dt)
+        tick += per
+    return refs.shape[0], 0
+
+
+@dataclass
+class InProcessRun:
+    """The per-step log of one run (columns L_*), its phases and how it ended."""
+
+    log: np.ndarray
+    phases: list  # [(mission time, segment name)]
+    duration: float  # the trajectory's duration (s)
+    status: int
+    mission_start: float  # vehicle time of the mission's t = 0
+
+    @property
+    def aborted(self):
+        return STATUS_NAMES[self.status]
+
+
+def boot_seconds(tick, physics_dt):
+    """The vehicle time a LOCAL_POSITION_NED sample at ``tick`` carries (ms resolution)."""
+    ms = np.round(np.asarray(tick, dtype=np.int64) * physics_dt * 1000.0).astype(np.int64)
+    return (ms & 0xFFFFFFFF) / 1000.0
+
+
+def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None):
+    """Fly ``mission`` in process; returns an :class:`InProcessRun`.
+
+    ``kind``: the position controller ('pd', 'ladrc', 'adrc', 'pid', or 'oracle': PD with the
+    true disturbance fed forward); ``seed``/``wind`` override the mission's (as ``mavadrc fly``'s
+    options do).  ``vehicle_options``: extra :class:`SimVehicle` keywords.
+    """
+    kind = kind or mission.controller.kind
+    oracle = kind == "oracle"
+    spec = mission.controller
+    seed = mission.seed if seed is None else seed
+    wind = mission.wind if wind is None else wind
+    v = SimVehicle(mission.vehicle or "crazyflie", wind=wind, seed=seed,
+                   attitude_controller=mission.attitude_controller,
+                   **dict(vehicle_options or {}))
+    h = 1.0 / spec.rate_hz
+    dt = v.physics_dt
+    per = int(round(h / dt))
+    if abs(per * dt - h) > 1e-9 * h:
+        raise ValueError(f"controller rate {spec.rate_hz:g} Hz must divide the physics rate "
+                         f"{1.0 / dt:g} Hz for the in-process path")
+    hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
+    ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind)
+    # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START
+    v.step(round(ARM_AT / h) * h)
+    r = v.reported()
+    origin = f32(r.position)
+    traj, phases = mission.build_trajectory(origin)
+    v.arm()
+    t0 = None
+    while t0 is None:
+        tick = v._tick
+        ts = float(boot_seconds(tick, dt))
+        yaw = float(f32(v.reported().euler[2]))
+        start = MISSION_START - Flight.SPOOL_S
+        k = min(1.0, max(0.0, (ts - start) / Flight.SPOOL_S))
+        v.set_attitude_target(f32(level_quat(yaw)), float(f32(0.8 * hover * k)))
+        if ts >= MISSION_START - 1e-9:
+            t0 = ts
+            ctrl.reset(f32(v.reported().position))
+        v.step(h)
+    # the mission steps: sample times as the wire carries them, the reference as the flight
+    # reads it (the grid of control periods, or an exact sample off the grid)
+    n_max = int(math.ceil((traj.duration + 2 * h) / h)) + 2
+    ticks = v._tick + per * np.arange(n_max)
+    times = boot_seconds(ticks, dt) - t0
+    done = np.nonzero(times >= traj.duration)[0]
+    n = int(done[0]) + 1 if done.size else n_max
+    times = times[:n]
+    ref = _references(traj, times, h)
+    packed = v._packed
+    if packed is None and v.wind is not None:
+        raise ValueError("this wind has no compiled form (sim.wind.pack_wind); the in-process "
+                         "path needs one")
+    if packed is None:
+        packed = pack_wind(Wind())  # calm: the packed form of no wind is all zeros
+    eta = packed.normals(n * per)
+    fw = v.fw
+    log = np.full((n, NLOG), math.nan)
+    sf = mission.safety
+    limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
+                       sf.max_speed], dtype=float)
+    Pc, Mc = ctrl.params
+    rows, status = closed_loop(
+        v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
+        packed.params, packed.state, eta, v._v_wind, v._f_ext, v._tau_ext, dt, int(v._tick),
+        fw.att_div, fw.pos_div, fw.pos_dt, per, times, ctrl._S, Pc, Mc, ref, oracle, limits,
+        origin, log)
+    steps = rows if status == STATUS_OK else rows - 1
+    v._tick += steps * per
+    v._target_time = v._tick * dt
+    return InProcessRun(log[:rows], phases, traj.duration, int(status), t0)
+
+
+def _references(traj, times, h):
+    """(N, 10) reference rows [pos, vel, acc, yaw] the flight would use at mission times."""
+    k = np.round(times / h).astype(np.int64)
+    grid_n = int(traj.duration / h) + 2
+    on_grid = (np.abs(times - k * h) < 1e-7) & (k < grid_n) & (k >= 0)
+    pos, vel, acc, yaw, _ = traj.sample_many(np.where(on_grid, k * h, times))
+    return np.column_stack([pos, vel, acc, yaw])
