@@ -22,6 +22,18 @@ def _fly(args):
     return fly.main(args)
 
 
+def _compare(args):
+    from . import compare
+
+    return compare.main(args)
+
+
+def _tune(args):
+    from . import tune
+
+    return tune.main(args)
+
+
 def _plot(args):
     from . import figures
 
@@ -58,6 +70,38 @@ def build_parser():
                    help="give up (and land) after this many wall-clock seconds")
     f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     f.set_defaults(func=_fly)
+    c = sub.add_parser("compare", help="run an experiment (scenarios x controllers x seeds) and "
+                                       "write its report")
+    c.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
+    c.add_argument("--out", default=None,
+                   help="output folder (default: runs/compare-NAME)")
+    c.add_argument("--seeds", type=int, default=None,
+                   help="run seeds 0..N-1 (default: the experiment's seeds)")
+    c.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: one per core)")
+    c.add_argument("--scheduler", default=None,
+                   help="run on a Dask distributed cluster at this address (tcp://HOST:PORT)")
+    c.add_argument("--via", choices=("inprocess", "mavlink"), default="inprocess",
+                   help="inprocess (default): the fast path on the vehicle's kernels; mavlink: "
+                        "each run flown over MAVLink against the bundled vehicle in lockstep")
+    c.add_argument("--no-figures", action="store_true", help="tables only")
+    c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    c.set_defaults(func=_compare)
+    t = sub.add_parser("tune", help="search controller bandwidths that minimise the RMS error "
+                                    "over an experiment's scenarios and seeds")
+    t.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
+    t.add_argument("--controller", required=True,
+                   help="the experiment's controller (by name) whose gains are searched")
+    t.add_argument("--scenarios", default="*",
+                   help="scenario names to tune on (shell pattern, default: all)")
+    t.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the file's)")
+    t.add_argument("--maxiter", type=int, default=20, help="differential evolution generations")
+    t.add_argument("--popsize", type=int, default=8, help="population size per parameter")
+    t.add_argument("--workers", type=int, default=None,
+                   help="parallel evaluations (default: one per core)")
+    t.add_argument("--seed", type=int, default=0, help="the optimiser's seed")
+    t.add_argument("--out", default=None, help="controller YAML to write (default: stdout)")
+    t.set_defaults(func=_tune)
     p = sub.add_parser("plot", help="redraw the figures of a flight record or of any .tlog")
     p.add_argument("target", help="a flight record folder or a .tlog file")
     p.add_argument("--out", default=None, help="where to write the PNGs")

@@ -1,0 +1,218 @@
+"""`mavadrc compare EXPERIMENT.yaml`: run an experiment's matrix and write its report.
+
+Runs go to local worker processes (default: one per core), or with ``--scheduler
+tcp://HOST:PORT`` to a Dask distributed cluster; either way each run is a pure function of
+(experiment text, scenario, controller, seed), so the same seeds give the same records.  Output,
+in one folder: ``results.json`` (one record per run), ``results.csv`` (the same, flat),
+``report.md`` (tables, findings, goals) and figures.
+"""
+
+import concurrent.futures as cf
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from .experiment import experiment_from_text, load_experiment, run_task
+
+RESULTS_VERSION = 1
+
+
+class Progress:
+    """A one-line progress bar on a terminal, a line every few seconds otherwise."""
+
+    def __init__(self, total, out=sys.stderr, enabled=True):
+        self.total = total
+        self.done = 0
+        self.out = out
+        self.enabled = enabled
+        self.t0 = time.monotonic()
+        self._last = 0.0
+
+    def step(self, n=1):
+        self.done += n
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        tty = self.out.isatty()
+        if self.done < self.total and now - self._last < (0.2 if tty else 5.0):
+            return
+        self._last = now
+        k = self.done / self.total if self.total else 1.0
+        bar = "#" * int(30 * k) + "-" * (30 - int(30 * k))
+        rate = self.done / max(now - self.t0, 1e-9)
+        line = f"[{bar}] {self.done}/{self.total} runs, {rate:.1f} runs/s"
+        self.out.write(("\r\033[K" + line) if tty else line + "\n")
+        if tty and self.done >= self.total:
+            self.out.write("\n")
+        self.out.flush()
+
+
+def _warm_up(exp):
+    """Compile (or load from numba's cache) the whole closed loop once, before any worker
+    starts, so workers load it instead of compiling it side by side."""
+    from .experiment import run_inprocess
+
+    kinds = {}
+    for j, c in enumerate(exp.controllers):
+        kinds.setdefault(c.kind, j)
+    for j in kinds.values():
+        run_inprocess(exp, 0, j, exp.seeds[0])
+
+
+def _worker_init():
+    # one thread per worker process: the processes are the parallelism
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+
+def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess", out_dir=None,
+               progress=True, keep_logs_seed=None, stream=sys.stderr):
+    """Every run of the matrix; returns (records in matrix order, {(i, j): log} for the runs of
+    ``keep_logs_seed``, wall seconds)."""
+    seeds = exp.seeds if seeds is None else seeds
+    runs = exp.runs(seeds)
+    if via == "mavlink":
+        skipped = [r for r in runs if exp.controllers[r[1]].kind == "oracle"]
+        runs = [r for r in runs if exp.controllers[r[1]].kind != "oracle"]
+        if skipped:
+            stream.write(f"{len(skipped)} oracle runs skipped: the oracle runs in process only\n")
+    tasks = [(exp.source, exp.text, i, j, s, via, s == keep_logs_seed,
+              str(Path(out_dir or ".") / "flights")) for i, j, s in runs]
+    bar = Progress(len(tasks), out=stream, enabled=progress)
+    t0 = time.perf_counter()
+    results = [None] * len(tasks)
+    if scheduler:
+        from distributed import Client, as_completed
+
+        with Client(scheduler) as client:
+            futures = client.map(run_task, tasks, pure=False)
+            index = {f.key: k for k, f in enumerate(futures)}
+            for fut in as_completed(futures):
+                results[index[fut.key]] = fut.result()
+                bar.step()
+    else:
+        if via == "inprocess":
+            _warm_up(exp)
+        n = workers if workers is not None else (os.cpu_count() or 1)
+        if via == "mavlink":
+            n = 1  # each run already runs two processes (companion + vehicle)
+        if n <= 1 or len(tasks) <= 1:
+            for k, task in enumerate(tasks):
+                results[k] = run_task(task)
+                bar.step()
+        else:
+            import multiprocessing as mp
+
+            ctx = mp.get_context("spawn" if sys.platform != "linux" else "forkserver")
+            with cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx,
+                                        initializer=_worker_init) as pool:
+                chunk = max(1, min(8, len(tasks) // (4 * n)))
+                for k, res in enumerate(pool.map(run_task, tasks, chunksize=chunk)):
+                    results[k] = res
+                    bar.step()
+    wall = time.perf_counter() - t0
+    records = [r[0] for r in results]
+    logs = {(i, j): res[1] for (i, j, s), res in zip(runs, results) if res[1] is not None}
+    return records, logs, wall
+
+
+def write_results(folder, exp, records, meta):
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    doc = {"version": RESULTS_VERSION, "experiment": exp.name, "experiment_file": exp.source,
+           **meta, "records": records}
+    tmp = folder / "results.json.tmp"
+    tmp.write_text(json.dumps(_finite(doc), indent=1) + "\n")
+    os.replace(tmp, folder / "results.json")
+    _write_csv(folder / "results.csv", records)
+
+
+def _finite(x):
+    """JSON has no NaN: NaN and infinities become null."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def _flat(rec, prefix=""):
+    out = {}
+    for k, v in rec.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flat(v, key + "."))
+        elif isinstance(v, (list, tuple)) and len(v) == 3 and all(
+                isinstance(a, (int, float)) or a is None for a in v):
+            for a, x in zip("xyz", v):
+                out[f"{key}.{a}"] = x
+        else:
+            out[key] = v
+    return out
+
+
+def _write_csv(path, records):
+    import csv
+
+    rows = [_flat(r) for r in records]
+    cols = []
+    for r in rows:
+        for k in r:
+            if k not in cols:
+                cols.append(k)
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if v is None else v) for k, v in r.items()})
+
+
+def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="inprocess",
+            figures=True, progress=True, stream=sys.stderr):
+    """Run the experiment at ``path`` and write its folder; returns (folder, records)."""
+    exp = load_experiment(path)
+    seed_list = exp.seeds if seeds is None else list(range(int(seeds)))
+    folder = Path(out) if out else Path("runs") / f"compare-{Path(exp.source).stem}"
+    folder.mkdir(parents=True, exist_ok=True)
+    stream.write(f"{exp.name}: {len(exp.scenarios)} scenarios x {len(exp.controllers)} "
+                 f"controllers x {len(seed_list)} seeds"
+                 f"{' over MAVLink (lockstep)' if via == 'mavlink' else ''}"
+                 f"{f' on {scheduler}' if scheduler else ''}\n")
+    records, logs, wall = run_matrix(exp, seeds=seed_list, workers=workers, scheduler=scheduler,
+                                     via=via, out_dir=folder, progress=progress,
+                                     keep_logs_seed=seed_list[0] if figures else None,
+                                     stream=stream)
+    meta = {"seeds": seed_list, "via": via, "scheduler": scheduler, "runs": len(records),
+            "wall_s": wall, "runs_per_s": len(records) / wall if wall > 0 else None}
+    write_results(folder, exp, records, meta)
+    from .report import write_report
+
+    write_report(folder, exp, records, meta, logs if figures else {})
+    stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s); "
+                 f"report in {folder / 'report.md'}\n")
+    return folder, records
+
+
+def main(args):
+    from sim.yamlio import ConfigError
+
+    try:
+        folder, records = compare(args.experiment, out=args.out, seeds=args.seeds,
+                                  workers=args.workers, scheduler=args.scheduler, via=args.via,
+                                  figures=not args.no_figures, progress=not args.quiet)
+    except (ConfigError, OSError) as exc:
+        print(f"mavadrc compare: {exc}", file=sys.stderr)
+        return 2
+    from .report import summary_table
+
+    print(summary_table(experiment_from_text(*_source_text(args.experiment)), records))
+    return 0
+
+
+def _source_text(path):
+    exp = load_experiment(path)
+    return exp.source, exp.text

@@ -1,0 +1,406 @@
+"""Experiments: a matrix of scenarios x controllers x seeds, run and summarised.
+
+An experiment file (``configs/experiments/*.yaml``)::
+
+    name: thesis section 6
+    seeds: 1                      # how many (0, 1, ...), or a list; --seeds N overrides
+    defaults:                     # mission keys every scenario starts from
+      vehicle: crazyflie
+      safety: {geofence: {north: [-20, 20], east: [-20, 20]}}
+      settle_s: 12                # errors are reported before (joining) and after this time
+    controllers:                  # every scenario runs every controller
+      - {name: PD, type: pd, wc: [2.5, 2.5, 3.0]}
+      - {name: LADRC, type: ladrc, wc: [...], wo: [...]}
+      - {name: oracle, type: oracle}          # PD + the simulator's true disturbance (in process)
+    scenarios:
+      - name: circle 2 m/s
+        group: PD on the circle, no wind (thesis 6.2.1)
+        series: {name: circle speed, value: 2.0, unit: m/s}   # for "where does it break"
+        trajectory:               # as a mission's; may end in the air
+          - takeoff: {altitude: 1.0, speed: 0.5}
+          - circle: {radius: 10, speed: 2, altitude: 1, duration: 41.4, join: direct}
+        wind: breeze_1ms
+        thesis: {PD: {max_error_xyz_m: [0.018, 0.033, 0.031], note: "fig. 8a"}}
+    goals:                        # claims the report checks, measured
+      - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
+         metric: after_settle.max_error_m, at_most: 0.05}
+      - {scenario: "*", controllers: [ADRC], metric: after_settle.rms_error_m,
+         ratio_to: PD, at_most: 0.333}
+    breaks:                       # where a controller breaks along a series
+      - {series: circle speed, metric: after_settle.max_error_m, above: 0.5}
+
+Each run is one mission flown by :func:`mavadrc.inprocess.fly_inprocess` (the fast path) or, with
+``via="mavlink"``, by ``mavadrc fly --lockstep`` against the bundled vehicle; both give the same
+record.  A record holds ``scenario``, ``controller``, ``seed`` and the error keys of a flight's
+``summary.json`` (``rms_error_m``, ``max_error_m``, ``rms_error_xyz_m``, ``max_error_xyz_m``, and
+``after_settle``), plus the joining transient, control effort and saturation figures, and whether
+the scenario was feasible for it.
+"""
+
+import copy
+import functools
+import hashlib
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sim.yamlio import Section, YamlMap, config_path, load_yaml
+
+from .mission import KINDS, _read_controller, mission_from_section
+from .record import error_figures
+
+CONTROLLER_KINDS = KINDS + ("oracle",)
+# the vehicle's own attitude loop when a scenario asks for the one matching the controller
+MATCHING_ATTITUDE = {"pd": "pd", "adrc": "adrc", "ladrc": "ladrc", "pid": "px4", "oracle": "px4"}
+#: a run whose thrust sits at a limit for more than this share of the tracking window is
+#: reported infeasible (the vehicle cannot do what the scenario asks)
+SATURATION_SHARE = 0.10
+
+
+@dataclass
+class ControllerEntry:
+    name: str
+    spec: object  # mission.ControllerSpec; kind may be 'oracle'
+
+    @property
+    def kind(self):
+        return self.spec.kind
+
+
+@dataclass
+class Scenario:
+    name: str
+    group: str
+    mission: object  # mission.Mission without a controller
+    settle_s: float
+    series: dict = None  # {name, value, unit}
+    thesis: dict = field(default_factory=dict)  # controller name or kind -> reported figures
+    attitude_match: bool = False
+    note: str = ""
+
+
+@dataclass
+class Experiment:
+    name: str
+    source: str
+    text: str
+    description: str
+    controllers: list
+    scenarios: list
+    seeds: list
+    goals: list
+    breaks: list
+
+    def runs(self, seeds=None):
+        """Every (scenario index, controller index, seed) of the matrix, scenario-major."""
+        seeds = self.seeds if seeds is None else seeds
+        return [(i, j, s) for i in range(len(self.scenarios))
+                for j in range(len(self.controllers)) for s in seeds]
+
+    def mission(self, i, j):
+        """The mission of scenario i flown by controller j."""
+        sc = self.scenarios[i]
+        m = copy.copy(sc.mission)
+        m.controller = self.controllers[j].spec
+        if sc.attitude_match:
+            m.attitude_controller = MATCHING_ATTITUDE[self.controllers[j].kind]
+        return m
+
+
+def _merged(defaults, item):
+    """``item`` over ``defaults`` (top-level keys), keeping each key's line."""
+    out = YamlMap(line=getattr(item, "line", None))
+    for src in (defaults, item):
+        if src is None:
+            continue
+        for k, v in src.items():
+            out[k] = v
+            lines = getattr(src, "lines", None)
+            if lines and k in lines:
+                out.lines[k] = lines[k]
+    return out
+
+
+def load_experiment(path):
+    """Read and check an experiment file (a path, or a name in configs/experiments)."""
+    path = Path(path) if Path(str(path)).exists() else config_path(path, "experiments")
+    return experiment_from_text(str(path), Path(path).read_text())
+
+
+@functools.lru_cache(maxsize=8)
+def _cached(source, text):
+    return _parse(source, text)
+
+
+def experiment_from_text(source, text):
+    """An :class:`Experiment` from YAML text (``source`` names it in errors); cached."""
+    return _cached(source, text)
+
+
+def _parse(source, text):
+    data = load_yaml(source, text=text)
+    top = Section(data, source)
+    name = top.string("name", Path(source).stem)
+    description = top.string("description", "")
+    seeds_raw = top.raw("seeds", 1)
+    if isinstance(seeds_raw, list):
+        seeds = [int(s) for s in top.vector("seeds", len(seeds_raw), ge=0)]
+    else:
+        n = int(top.number("seeds", 1, ge=1))
+        top.check("seeds", n == top.data.get("seeds", 1), "must be a whole number")
+        seeds = list(range(n))
+    defaults = top.raw("defaults", None)
+    if defaults is not None and not isinstance(defaults, dict):
+        top.error("defaults", "must be a mapping of mission keys")
+    controllers = []
+    for cs in top.sections("controllers"):
+        label = cs.string("name", None)
+        spec = _read_controller(cs, kinds=CONTROLLER_KINDS, finish=False)
+        cs.finish()
+        label = label or spec.kind.upper()
+        if any(c.name == label for c in controllers):
+            cs.error("name", f"two controllers are called {label!r}")
+        controllers.append(ControllerEntry(label, spec))
+    if not controllers:
+        top.error("controllers", "must list at least one controller")
+    scenarios = []
+    for k, raw in enumerate(top.raw("scenarios")):
+        if not isinstance(raw, dict):
+            top.error("scenarios", f"item {k} must be a mapping")
+        merged = _merged(defaults, raw)
+        lines = getattr(top.data["scenarios"], "lines", None)
+        sec = Section(merged, source, f"scenarios[{k}]", line=lines[k] if lines else None)
+        sname = sec.string("name")
+        if any(s.name == sname for s in scenarios):
+            sec.error("name", f"two scenarios are called {sname!r}")
+        group = sec.string("group", "")
+        note = sec.string("note", "")
+        settle = sec.number("settle_s", 0.0, ge=0.0)
+        series = None
+        if sec.has("series"):
+            ss = sec.section("series")
+            series = {"name": ss.string("name"), "value": ss.number("value"),
+                      "unit": ss.string("unit", "")}
+            ss.finish()
+        thesis = {}
+        if sec.has("thesis"):
+            ts = sec.section("thesis")
+            for ctrl_name in list(ts.data):
+                cs = ts.section(ctrl_name)
+                fig = {}
+                for key in ("max_error_xyz_m", "max_velocity_error_xyz_ms"):
+                    if cs.has(key):
+                        fig[key] = list(cs.vector(key, 3, ge=0.0))
+                if cs.has("max_error_m"):
+                    fig["max_error_m"] = cs.number("max_error_m", ge=0.0)
+                fig["note"] = cs.string("note", "")
+                cs.finish()
+                thesis[str(ctrl_name)] = fig
+            ts.finish()
+        match = sec.string("attitude_controller", None, choices=("match",)) == "match"
+        # the rest is a mission (without a controller, which the matrix supplies)
+        skip = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller")
+        mission_keys = {k: v for k, v in merged.items() if k not in skip}
+        mm = YamlMap(mission_keys, line=merged.line)
+        mm.lines = {k: v for k, v in merged.lines.items() if k in mission_keys}
+        msec = Section(mm, source, f"scenarios[{k}]", line=merged.line)
+        mission = mission_from_section(msec, source, text, sname, require_land=False,
+                                       controller=False)
+        mission.name = sname
+        mission.settle_s = settle
+        sec._used.update(mission_keys)
+        sec.finish()
+        scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note))
+    if not scenarios:
+        top.error("scenarios", "must list at least one scenario")
+    goals = []
+    for gs in top.sections("goals", []):
+        g = {"scenario": gs.string("scenario"), "metric": gs.string("metric"),
+             "controllers": [str(c) for c in gs.raw("controllers")],
+             "ratio_to": gs.string("ratio_to", None),
+             "at_most": gs.number("at_most", None), "at_least": gs.number("at_least", None),
+             "text": gs.string("text", "")}
+        names = {c.name for c in controllers}
+        for c in g["controllers"] + ([g["ratio_to"]] if g["ratio_to"] else []):
+            gs.check("controllers", c in names, f"no controller called {c!r}")
+        gs.check("metric", g["at_most"] is not None or g["at_least"] is not None,
+                 "give at_most or at_least")
+        gs.finish()
+        goals.append(g)
+    breaks = []
+    for bs in top.sections("breaks", []):
+        breaks.append({"series": bs.string("series"), "metric": bs.string("metric"),
+                       "above": bs.number("above")})
+        bs.finish()
+    top.finish()
+    return Experiment(name, source, text, description, controllers, scenarios, seeds, goals,
+                      breaks)
+
+
+# --- one run -------------------------------------------------------------------------------------
+
+def metric(record, path):
+    """A record's value at a dotted path ('after_settle.max_error_m'); NaN if absent."""
+    v = record
+    for part in path.split("."):
+        if not isinstance(v, dict) or part not in v:
+            return math.nan
+        v = v[part]
+    return float(v) if v is not None else math.nan
+
+
+def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, thrust_min,
+              thrust_max, aborted=None, yaw=None, ref_yaw=None, dt=None):
+    """The record's figures from a run's per-step arrays (either path)."""
+    t = np.asarray(t, dtype=float)
+    out = error_figures(t, ref, pos)
+    out["after_settle"] = error_figures(t, ref, pos, settle_s)
+    join = t < settle_s
+    out["joining"] = error_figures(t[join], np.asarray(ref)[join], np.asarray(pos)[join])
+    h = dt if dt is not None else (float(np.median(np.diff(t))) if t.size > 1 else 0.0)
+    track = t >= settle_s
+    acc = np.asarray(acc_applied, dtype=float)
+    limited = np.any(np.abs(np.asarray(acc_cmd, dtype=float) - acc) > 1e-6, axis=1)
+    thr = np.asarray(thrust, dtype=float)
+    at_limit = (thr >= thrust_max - 1e-6) | (thr <= thrust_min + 1e-6)
+    n_track = int(track.sum())
+    out["effort_rms_accel"] = float(np.sqrt(np.mean(np.sum(acc[track] ** 2, axis=1)))) \
+        if n_track else math.nan
+    out["thrust_saturated_s"] = float(at_limit.sum() * h)
+    out["limited_s"] = float(limited.sum() * h)
+    share = float(at_limit[track].mean()) if n_track else 1.0
+    completed = aborted is None and t.size > 0 and t[-1] >= duration - 1e-6
+    out["completed"] = bool(completed)
+    out["aborted"] = aborted
+    out["duration_s"] = float(t[-1]) if t.size else 0.0
+    out["feasible"] = bool(completed and share <= SATURATION_SHARE)
+    if not completed:
+        out["infeasible_reason"] = f"{aborted or 'stopped early'} at {out['duration_s']:.1f} s"
+    elif share > SATURATION_SHARE:
+        out["infeasible_reason"] = f"thrust at its limit {100 * share:.0f} % of the tracking window"
+    if yaw is not None and ref_yaw is not None:
+        out["yaw_step"] = _yaw_step(t, np.asarray(yaw), np.asarray(ref_yaw))
+    return out
+
+
+def _yaw_step(t, yaw, ref_yaw):
+    """Step-response figures of the largest jump in the yaw reference, if there is one."""
+    jumps = np.abs(np.diff(np.unwrap(ref_yaw)))
+    if jumps.size == 0 or jumps.max() < math.radians(0.5):
+        return None
+    k = int(np.argmax(jumps)) + 1
+    y0, y1 = float(np.unwrap(ref_yaw)[k - 1]), float(np.unwrap(ref_yaw)[k])
+    step = y1 - y0
+    y = (np.unwrap(yaw[k:]) - y0) / step
+    tt = t[k:] - t[k]
+    over = float(max(0.0, y.max() - 1.0) * 100.0)
+    rise = tt[np.argmax(y >= 0.9)] - tt[np.argmax(y >= 0.1)] if np.any(y >= 0.9) else math.nan
+    outside = np.nonzero(np.abs(y - 1.0) > 0.02)[0]
+    settle = float(tt[outside[-1] + 1]) if outside.size and outside[-1] + 1 < tt.size else (
+        0.0 if not outside.size else math.nan)
+    return {"step_deg": math.degrees(step), "overshoot_pct": over, "rise_time_s": float(rise),
+            "settling_time_s": settle,
+            "steady_error_deg": float(abs(math.degrees(step * (1.0 - y[-1]))))}
+
+
+def run_inprocess(exp, i, j, seed, keep_log=False):
+    """Scenario i x controller j x seed on the fast path; returns (record, log or None)."""
+    from .inprocess import L_ACC, L_ACC_CMD, L_POS, L_REF, L_REF_YAW, L_T, L_THRUST, L_YAW, \
+        fly_inprocess
+
+    m = exp.mission(i, j)
+    t0 = time.perf_counter()
+    r = fly_inprocess(m, kind=exp.controllers[j].kind, seed=seed)
+    wall = time.perf_counter() - t0
+    L = r.log
+    rec = _record(exp, i, j, seed, "inprocess")
+    rec.update(summarise(L[:, L_T], L[:, L_REF:L_REF + 3], L[:, L_POS:L_POS + 3],
+                         L[:, L_ACC_CMD:L_ACC_CMD + 3], L[:, L_ACC:L_ACC + 3], L[:, L_THRUST],
+                         settle_s=exp.scenarios[i].settle_s, duration=r.duration,
+                         thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
+                         aborted=r.aborted, dt=1.0 / m.controller.rate_hz,
+                         **_yaw_args(exp, i, L[:, L_YAW], L[:, L_REF_YAW])))
+    rec["wall_s"] = wall
+    return rec, (L if keep_log else None)
+
+
+def run_mavlink(exp, i, j, seed, out_dir):
+    """The same run flown over MAVLink against the bundled vehicle in lockstep."""
+    import io
+
+    from .fly import fly
+    from .inprocess import MISSION_START
+    from .record import read_table
+
+    m = exp.mission(i, j)
+    kind = exp.controllers[j].kind
+    if kind == "oracle":
+        raise ValueError("the oracle needs the simulator's internals: it runs in process only")
+    if m.wind is not None and isinstance(m.wind, dict):
+        # the bundled vehicle reads wind from a file
+        import yaml
+        folder = Path(out_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        digest = hashlib.sha1(repr(sorted(m.wind.items())).encode()).hexdigest()[:10]
+        wind_file = folder / f"wind-{digest}.yaml"
+        wind_file.write_text(yaml.safe_dump(_plain(m.wind)))
+        m = copy.copy(m)
+        m.wind = str(wind_file)
+    t0 = time.perf_counter()
+    summary, folder = fly(m, kind=kind, out=str(out_dir), lockstep=True, seed=seed,
+                          figures=False, progress=False, stream=io.StringIO(),
+                          start_at=MISSION_START, timeout=600.0)
+    wall = time.perf_counter() - t0
+    tab = read_table(Path(folder) / "controller.csv")
+    ax = "xyz"
+    rec = _record(exp, i, j, seed, "mavlink")
+    col = lambda p: np.column_stack([tab[f"{p}{a}"] for a in ax])  # noqa: E731
+    traj, _ = m.build_trajectory()
+    rec.update(summarise(tab["t"], col("ref_"), col("pos_"), col("acc_cmd_"),
+                         col("acc_applied_"), tab["thrust"], settle_s=exp.scenarios[i].settle_s,
+                         duration=traj.duration, thrust_min=m.controller.thrust_min,
+                         thrust_max=m.controller.thrust_max, aborted=summary.get("aborted"),
+                         dt=1.0 / m.controller.rate_hz,
+                         **_yaw_args(exp, i, tab["yaw"], tab["ref_yaw"])))
+    rec["wall_s"] = wall
+    rec["record_folder"] = str(folder)
+    return rec, None
+
+
+def _yaw_args(exp, i, yaw, ref_yaw):
+    """Yaw step figures only where the scenario is about the attitude loop."""
+    if exp.scenarios[i].attitude_match:
+        return {"yaw": yaw, "ref_yaw": ref_yaw}
+    return {}
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_plain(v) for v in x]
+    return x
+
+
+def _record(exp, i, j, seed, via):
+    sc = exp.scenarios[i]
+    c = exp.controllers[j]
+    rec = {"scenario": sc.name, "group": sc.group, "controller": c.name, "kind": c.kind,
+           "seed": int(seed), "via": via, "settle_s": sc.settle_s,
+           "attitude_controller": exp.mission(i, j).attitude_controller}
+    if sc.series:
+        rec["series"] = dict(sc.series)
+    return rec
+
+
+def run_task(task):
+    """One run from a picklable task (source, text, i, j, seed, via, keep_log, out_dir): what a
+    local worker process or a Dask worker executes."""
+    source, text, i, j, seed, via, keep_log, out_dir = task
+    exp = experiment_from_text(source, text)
+    if via == "mavlink":
+        return run_mavlink(exp, i, j, seed, out_dir)
+    return run_inprocess(exp, i, j, seed, keep_log)

@@ -1,0 +1,378 @@
+"""The report of an experiment: Markdown tables, findings, goals and figures from its records."""
+
+import fnmatch
+import math
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from .experiment import metric
+
+TABLE_METRICS = (
+    ("RMS x", "after_settle.rms_error_xyz_m.0"),
+    ("RMS y", "after_settle.rms_error_xyz_m.1"),
+    ("RMS z", "after_settle.rms_error_xyz_m.2"),
+    ("RMS 3-D", "after_settle.rms_error_m"),
+    ("max 3-D", "after_settle.max_error_m"),
+    ("joining max", "joining.max_error_m"),
+    ("effort", "effort_rms_accel"),
+    ("thrust sat. s", "thrust_saturated_s"),
+    ("limited s", "limited_s"),
+)
+
+
+def value(rec, path):
+    """``metric`` with list indices ('after_settle.rms_error_xyz_m.0')."""
+    parts = path.split(".")
+    if parts[-1].isdigit():
+        v = rec
+        for p in parts[:-1]:
+            v = v.get(p, {}) if isinstance(v, dict) else {}
+        try:
+            x = v[int(parts[-1])]
+        except (TypeError, IndexError, KeyError):
+            return math.nan
+        return float(x) if x is not None else math.nan
+    return metric(rec, path)
+
+
+def grouped(exp, records):
+    """OrderedDict (scenario, controller) -> records over seeds, in the experiment's order."""
+    out = OrderedDict()
+    for sc in exp.scenarios:
+        for c in exp.controllers:
+            out[(sc.name, c.name)] = []
+    for r in records:
+        out.setdefault((r["scenario"], r["controller"]), []).append(r)
+    return out
+
+
+def stat(recs, path):
+    """(mean, std) of a metric over runs (NaN-free runs only); (nan, nan) if none."""
+    xs = np.array([value(r, path) for r in recs], dtype=float)
+    xs = xs[np.isfinite(xs)]
+    if xs.size == 0:
+        return math.nan, math.nan
+    return float(xs.mean()), float(xs.std(ddof=1)) if xs.size > 1 else 0.0
+
+
+def _fmt(mean, std, digits=3):
+    if not math.isfinite(mean):
+        return "-"
+    s = f"{mean:.{digits}f}"
+    if std and math.isfinite(std) and std > 0.5 * 10 ** -digits:
+        s += f" ± {std:.{digits}f}"
+    return s
+
+
+def feasible(recs):
+    return all(r.get("feasible", False) for r in recs)
+
+
+def _status(recs):
+    if not recs:
+        return "not run"
+    bad = [r for r in recs if not r.get("feasible", False)]
+    if not bad:
+        return "ok"
+    reason = bad[0].get("infeasible_reason", "infeasible")
+    return f"**infeasible** ({len(bad)}/{len(recs)}: {reason})"
+
+
+def thesis_cell(sc, c):
+    fig = sc.thesis.get(c.name) or sc.thesis.get(c.kind) or sc.thesis.get(c.kind.upper())
+    if not fig:
+        return ""
+    parts = []
+    if "max_error_xyz_m" in fig:
+        parts.append("max x/y/z " + "/".join(f"{v:g}" for v in fig["max_error_xyz_m"]))
+    if "max_error_m" in fig:
+        parts.append(f"max {fig['max_error_m']:g}")
+    if fig.get("note"):
+        parts.append(fig["note"])
+    return "; ".join(parts)
+
+
+def scenario_table(exp, sc, groups):
+    cols = ["controller"] + [name for name, _ in TABLE_METRICS] + ["status"]
+    has_thesis = bool(sc.thesis)
+    if has_thesis:
+        cols.append("thesis reports (m)")
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for c in exp.controllers:
+        recs = groups.get((sc.name, c.name), [])
+        cells = [c.name]
+        for _, path in TABLE_METRICS:
+            cells.append(_fmt(*stat(recs, path), digits=2 if path.endswith("_s") else 3))
+        cells.append(_status(recs))
+        if has_thesis:
+            cells.append(thesis_cell(sc, c))
+        lines.append("| " + " | ".join(cells) + " |")
+    yaw = [r.get("yaw_step") for c in exp.controllers
+           for r in groups.get((sc.name, c.name), [])[:1] if r.get("yaw_step")]
+    if yaw:
+        lines += ["", "| controller (its attitude loop) | yaw step (deg) | overshoot % | "
+                      "rise 10-90 % (s) | settling 2 % (s) | steady error (deg) |",
+                  "|---|---|---|---|---|---|"]
+        for c in exp.controllers:
+            recs = groups.get((sc.name, c.name), [])
+            if not recs or not recs[0].get("yaw_step"):
+                continue
+            ys = recs[0]["yaw_step"]
+            lines.append(f"| {c.name} ({recs[0].get('attitude_controller', '')}) | "
+                         f"{ys['step_deg']:.1f} | {ys['overshoot_pct']:.1f} | "
+                         f"{ys['rise_time_s']:.3f} | {ys['settling_time_s']:.3f} | "
+                         f"{ys['steady_error_deg']:.3f} |")
+    return "\n".join(lines)
+
+
+def findings(exp, groups):
+    """Sentences the report states, measured: where each controller breaks along each series,
+    and how ADRC and LADRC compare."""
+    out = []
+    for b in exp.breaks:
+        series = [sc for sc in exp.scenarios if sc.series and sc.series["name"] == b["series"]]
+        if not series:
+            continue
+        series.sort(key=lambda sc: sc.series["value"])
+        unit = series[0].series["unit"]
+        for c in exp.controllers:
+            broke = None
+            for sc in series:
+                recs = groups.get((sc.name, c.name), [])
+                m, _ = stat(recs, b["metric"])
+                if not feasible(recs) or not math.isfinite(m) or m > b["above"]:
+                    broke = (sc, m, feasible(recs))
+                    break
+            values = ", ".join(f"{sc.series['value']:g}" for sc in series)
+            if broke is None:
+                out.append(f"- **{c.name}**, {b['series']} ({values} {unit}): `{b['metric']}` "
+                           f"stays at or below {b['above']:g} at every value.")
+            else:
+                sc, m, ok = broke
+                why = f"{m:.3f}" if ok and math.isfinite(m) else "infeasible"
+                out.append(f"- **{c.name}**, {b['series']}: breaks at {sc.series['value']:g} "
+                           f"{unit} (`{b['metric']}` {why} > {b['above']:g}).")
+    # ADRC vs LADRC, scenario by scenario, where both ran
+    kinds = {c.kind: c.name for c in exp.controllers}
+    if "adrc" in kinds and "ladrc" in kinds:
+        a, l = kinds["adrc"], kinds["ladrc"]
+        ratios = []
+        for sc in exp.scenarios:
+            ra = groups.get((sc.name, a), [])
+            rl = groups.get((sc.name, l), [])
+            if feasible(ra) and feasible(rl):
+                ma, _ = stat(ra, "after_settle.rms_error_m")
+                ml, _ = stat(rl, "after_settle.rms_error_m")
+                if ma > 0 and ml > 0:
+                    ratios.append((ma / ml, sc.name))
+        if ratios:
+            r = np.array([x for x, _ in ratios])
+            best = min(ratios)
+            worst = max(ratios)
+            out.append(f"- **{a} vs {l}** (RMS after settling, {len(ratios)} feasible scenarios): "
+                       f"median ratio {np.median(r):.2f}; {a} is better in "
+                       f"{int((r < 1).sum())}, {l} in {int((r > 1).sum())}; extremes "
+                       f"{best[0]:.2f} ({best[1]}) and {worst[0]:.2f} ({worst[1]}).")
+    return out
+
+
+def check_goals(exp, groups):
+    """[(text, met, detail)] for each goal of the experiment."""
+    out = []
+    for g in exp.goals:
+        scs = [sc for sc in exp.scenarios if fnmatch.fnmatchcase(sc.name, g["scenario"])]
+        for c in g["controllers"]:
+            worst = None
+            for sc in scs:
+                recs = groups.get((sc.name, c), [])
+                m, _ = stat(recs, g["metric"])
+                if g["ratio_to"]:
+                    base, _ = stat(groups.get((sc.name, g["ratio_to"]), []), g["metric"])
+                    m = m / base if base > 0 else math.nan
+                ok = math.isfinite(m) and feasible(recs) and \
+                    (g["at_most"] is None or m <= g["at_most"]) and \
+                    (g["at_least"] is None or m >= g["at_least"])
+                if worst is None or (not ok and worst[1]) or (
+                        ok == worst[1] and math.isfinite(m) and g["at_most"] is not None
+                        and (not math.isfinite(worst[2]) or m > worst[2])):
+                    worst = (sc.name, ok, m)
+            if worst is None:
+                out.append((f"{c}: `{g['metric']}` on {g['scenario']!r}", False,
+                            "no such scenario"))
+                continue
+            what = f"{c} / {g['ratio_to']}" if g["ratio_to"] else c
+            bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else \
+                f">= {g['at_least']:g}"
+            text = g["text"] or f"{what}: `{g['metric']}` {bound} on {g['scenario']!r}"
+            detail = f"worst: {worst[2]:.4g} ({worst[0]})"
+            if not worst[1] and math.isfinite(worst[2]) and g["at_most"] is not None:
+                detail += f", missed by {worst[2] / g['at_most']:.2f}x"
+            out.append((text, worst[1], detail))
+    return out
+
+
+def summary_table(exp, records):
+    """A compact plain-text table for the terminal: RMS 3-D after settling per scenario."""
+    groups = grouped(exp, records)
+    names = [c.name for c in exp.controllers]
+    w = max(len(sc.name) for sc in exp.scenarios)
+    lines = ["", f"  {'RMS error after settling (m)':<{w}}  " + "".join(f"{n:>14}" for n in names)]
+    for sc in exp.scenarios:
+        cells = []
+        for n in names:
+            recs = groups.get((sc.name, n), [])
+            m, _ = stat(recs, "after_settle.rms_error_m")
+            cells.append(("x " if not feasible(recs) else "") + (f"{m:.4f}" if math.isfinite(m)
+                                                                 else "-"))
+        lines.append(f"  {sc.name:<{w}}  " + "".join(f"{c:>14}" for c in cells))
+    lines.append("  (x: infeasible: thrust saturated or the run stopped at a safety limit)")
+    return "\n".join(lines)
+
+
+def write_report(folder, exp, records, meta, logs):
+    folder = Path(folder)
+    groups = grouped(exp, records)
+    figs = {}
+    if logs:
+        try:
+            figs = make_figures(folder, exp, groups, logs)
+        except ImportError:
+            figs = {}
+    L = [f"# {exp.name}", ""]
+    if exp.description:
+        L += [exp.description.strip(), ""]
+    L += [f"Experiment file `{exp.source}`; {meta['runs']} runs ({len(exp.scenarios)} scenarios "
+          f"x {len(exp.controllers)} controllers x {len(meta['seeds'])} seeds), "
+          f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
+          f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
+          f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", "",
+          "Errors are position errors in metres: RMS and max over the tracking window (after "
+          "each scenario's settling time, which covers the takeoff and the joining transient), "
+          "mean ± std over seeds; `joining max` is the largest error before it. `effort` is the "
+          "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
+          "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
+          "command. A scenario is **infeasible** for a controller when its thrust sits at a limit "
+          f"more than {100 * 0.1:.0f} % of the tracking window or the run stopped at a safety "
+          "limit.", ""]
+    goals = check_goals(exp, groups)
+    if goals:
+        L += ["## Goals", ""]
+        for text, ok, detail in goals:
+            L.append(f"- {'met' if ok else '**missed**'}: {text} ({detail})")
+        L.append("")
+    fs = findings(exp, groups)
+    if fs:
+        L += ["## Findings", ""] + fs + [""]
+    if "overview" in figs:
+        L += [f"![overview]({figs['overview']})", ""]
+    current = None
+    for sc in exp.scenarios:
+        if sc.group != current:
+            current = sc.group
+            if current:
+                L += [f"## {current}", ""]
+        L += [f"### {sc.name}", ""]
+        if sc.note:
+            L += [sc.note.strip(), ""]
+        L += [scenario_table(exp, sc, groups), ""]
+        if sc.name in figs:
+            L += [f"![{sc.name}]({figs[sc.name]})", ""]
+    (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def _slug(name):
+    return "".join(ch if ch.isalnum() else "_" for ch in name).strip("_").lower()
+
+
+def make_figures(folder, exp, groups, logs):
+    """Thesis-style figures of the first seed: per scenario marked ``figure``-worthy (all of
+    them, at most 12), the 3-D path against the reference, the error over time, the observers'
+    disturbance estimate against the truth, and U1..U4; plus an overview bar chart."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
+
+    out = {}
+    fig_dir = Path(folder) / "figures"
+    fig_dir.mkdir(exist_ok=True)
+    names = [c.name for c in exp.controllers]
+    # overview: RMS after settling per scenario and controller (log scale)
+    fig, ax = plt.subplots(figsize=(max(8, 0.5 * len(exp.scenarios) * len(names) / 3), 4.5))
+    width = 0.8 / len(names)
+    for k, c in enumerate(exp.controllers):
+        ys = []
+        for sc in exp.scenarios:
+            recs = groups.get((sc.name, c.name), [])
+            m, _ = stat(recs, "after_settle.rms_error_m")
+            ys.append(m if feasible(recs) else math.nan)
+        ax.bar(np.arange(len(exp.scenarios)) + k * width, ys, width, label=c.name)
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(exp.scenarios)) + 0.4 - width / 2)
+    ax.set_xticklabels([sc.name for sc in exp.scenarios], rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel("RMS position error after settling (m)")
+    ax.set_title(f"{exp.name} (missing bar: infeasible)")
+    ax.legend(fontsize=7, ncol=len(names))
+    fig.tight_layout()
+    fig.savefig(fig_dir / "overview.png", dpi=110)
+    plt.close(fig)
+    out["overview"] = "figures/overview.png"
+    chosen = [sc for sc in exp.scenarios][:12]
+    for sc in chosen:
+        runs = [(c, logs.get((exp.scenarios.index(sc), j))) for j, c in enumerate(exp.controllers)]
+        runs = [(c, L) for c, L in runs if L is not None and len(L)]
+        if not runs:
+            continue
+        fig = plt.figure(figsize=(12, 8))
+        ax3 = fig.add_subplot(2, 2, 1, projection="3d")
+        ref = runs[0][1]
+        ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1,
+                 label="reference")
+        for c, L in runs:
+            ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1, label=c.name)
+        ax3.set_xlabel("east (m)")
+        ax3.set_ylabel("north (m)")
+        ax3.set_zlabel("altitude (m)")
+        ax3.legend(fontsize=7)
+        ax = fig.add_subplot(2, 2, 2)
+        for c, L in runs:
+            e = np.linalg.norm(L[:, L_POS:L_POS + 3] - L[:, L_REF:L_REF + 3], axis=1)
+            ax.plot(L[:, L_T], e, lw=1, label=c.name)
+        ax.axvline(sc.settle_s, color="grey", ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xlabel("mission time (s)")
+        ax.set_ylabel("|position error| (m)")
+        ax.set_title("error (dotted: end of the settling window)", fontsize=9)
+        ax = fig.add_subplot(2, 2, 3)
+        shown = False
+        for c, L in runs:
+            if c.kind in ("adrc", "ladrc"):
+                ax.plot(L[:, L_T], L[:, L_Z3], lw=1, label=f"{c.name} z3 (x)")
+                shown = True
+        ax.plot(runs[0][1][:, L_T], runs[0][1][:, L_DIST], "k--", lw=1, label="true (x)")
+        ax.set_xlabel("mission time (s)")
+        ax.set_ylabel("disturbance accel. x (m/s^2)")
+        ax.set_title("observer estimate vs truth" if shown else "true disturbance", fontsize=9)
+        ax.legend(fontsize=7)
+        ax = fig.add_subplot(2, 2, 4)
+        for c, L in runs[:3]:
+            for k, (name, ls) in enumerate((("U1 T (N)", "-"), ("U2 tau_x", "--"),
+                                            ("U3 tau_y", "-."), ("U4 tau_z", ":"))):
+                y = L[:, L_WRENCH + k]
+                scale = 1.0 if k == 0 else 100.0
+                ax.plot(L[:, L_T], y * scale, ls, lw=0.8,
+                        label=f"{c.name} {name}{'' if k == 0 else ' x100 (N m)'}")
+        ax.set_xlabel("mission time (s)")
+        ax.set_title("virtual inputs U1..U4", fontsize=9)
+        ax.legend(fontsize=6, ncol=2)
+        fig.suptitle(sc.name)
+        fig.tight_layout()
+        name = f"figures/{_slug(sc.name)}.png"
+        fig.savefig(Path(folder) / name, dpi=90)
+        plt.close(fig)
+        out[sc.name] = name
+    return out
