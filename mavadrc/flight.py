@@ -54,6 +54,11 @@ def default_gains(kind):
         # to a moving reference) is off unless the mission asks for it (td: true).
         return {"td": False, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0), "r": (8.0, 8.0, 8.0),
                 "c": (1.0, 1.0, 1.0), "delta": (0.05, 0.05, 0.05)}
+    if kind == "pid":
+        # the PD default's bandwidth plus an integrator (channels.pid_gains): kp_pos = wc/2,
+        # kp_vel = 2 wc, ki_vel = wc^2/2, no D, i.e. kp_pos (1.25, 1.25, 1.5) /s, kp_vel
+        # (5, 5, 6) /s, ki_vel (3.125, 3.125, 4.5) /s^2; integrator authority 3 m/s^2
+        return {"wc": (2.5, 2.5, 3.0), "i_limit": (3.0, 3.0, 3.0)}
     return {"wc": (2.5, 2.5, 3.0)}
 
 
@@ -64,6 +69,8 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
         gains.update(spec.gains)
     if kind == "pd" and "kp" in gains and "wc" in gains:
         gains.pop("wc")
+    # pid: wc gives every gain (channels.pid_gains); kp_pos, kp_vel, ki_vel, kd_vel given by the
+    # mission replace those one by one, so PX4-style gains can be given in full or in part
     if kind == "adrc":
         # bandwidth shorthand: NLSEF fhan(e1, c e2, r, h1) is linear near zero with kp = 1/h1^2,
         # kd = 2c/h1, so h1 = 1/wc; the NLESO gains are those of a triple pole at -wo in fal's

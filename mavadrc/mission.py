@@ -3,7 +3,7 @@
     name: thesis spiral in wind
     vehicle: crazyflie              # a vehicle file; or {hover_thrust: 0.6} / {mass:, max_thrust:}
     controller:
-      type: ladrc                   # adrc | ladrc | pd
+      type: ladrc                   # adrc | ladrc | pd | pid
       rate_hz: 100
       wc: [2.5, 2.5, 3.0]           # per axis (x, y, z) or one number
       wo: [12.5, 12.5, 15.0]
@@ -28,7 +28,7 @@ from sim.yamlio import ConfigError, Section, config_path, load_yaml
 
 from . import trajectories as T
 
-KINDS = ("adrc", "ladrc", "pd")
+KINDS = ("adrc", "ladrc", "pd", "pid")
 SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named")
 
 
@@ -308,6 +308,11 @@ def _read_controller(sec, kinds=None, finish=True):
     for key in per_axis:
         if sec.has(key):
             c.gains[key] = tuple(sec.vector(key, 3, scalar_ok=True, gt=0.0))
+    for key, zero_ok in (("kp_pos", False), ("kp_vel", False), ("ki_vel", True), ("kd_vel", True),
+                         ("i_limit", True), ("d_cutoff_hz", True)):  # the pid kind's gains
+        if sec.has(key):
+            bound = {"ge": 0.0} if zero_ok else {"gt": 0.0}
+            c.gains[key] = tuple(sec.vector(key, 3, scalar_ok=True, **bound))
     if sec.has("beta"):
         c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
     if sec.has("td"):

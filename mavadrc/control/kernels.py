@@ -1,4 +1,4 @@
-"""Discrete-time control kernels: Han's functions, the TD, both ESOs, NLSEF, LADRC and PD.
+"""Discrete-time control kernels: Han's functions, the TD, both ESOs, NLSEF, LADRC, PD and PID.
 
 Everything here is a pure function over floats and float64 arrays (no I/O, no clocks), compiled
 with numba.  A channel controller is two small vectors: a *state* vector (``S_*`` indices) and a
@@ -10,10 +10,13 @@ The laws are the corrected ones of the project's ADRC notes (see the README, "Co
 thesis"): ``d = r*h^2`` in ``fhan``; the TD is a discrete recursion at the real step; the NLSEF is
 ``u0 = -fhan(e1, c*e2, r, h1)`` and ``u = (u0 + rddot - z3)/b0``; the LESO's second state
 integrates ``z3 - l2*(z1 - y) + b0*u``; PD and LADRC use ``z2 - rdot`` for the rate error.
+PID is PX4's cascade (position P -> velocity PID with conditional integration, see
+:func:`pid_step`).
 
 Observers are always fed the input that was *applied* over the last step (after limits), which is
 what ``S_U`` holds.  A caller that limits the command further (tilt limits, a mixer) overwrites
-``S_U`` with what it really applied.
+``S_U`` with what it really applied; the PID kind compares it with its own command to stop its
+integrator winding up.
 """
 
 import math
@@ -26,6 +29,7 @@ from ._jit import jit
 KIND_PD = 0
 KIND_LADRC = 1
 KIND_HAN = 2
+KIND_PID = 3
 
 # --- state vector layout -------------------------------------------------------------------------
 S_Z1 = 0  # observer: output estimate
@@ -34,11 +38,14 @@ S_Z3 = 2  # observer: total disturbance estimate (acceleration units of the chan
 S_U = 3  # input applied over the last step (after limits)
 S_V1 = 4  # TD: tracked reference
 S_V2 = 5  # TD: its derivative
-S_INIT = 6  # 1.0 once initialised from a measurement
+S_INIT = 6  # 1.0 once initialised from a measurement (PID: 2.0 once it has a previous rate)
 S_YPREV = 7  # PD: previous measurement (for differentiation when no rate is measured)
 S_U0 = 8  # virtual control u0 (before disturbance cancellation and division by b0)
 S_FH = 9  # TD: acceleration of the tracked reference
-NS = 10
+S_I = 10  # PID: velocity integrator times ki_vel (acceleration units, |S_I| <= i_limit)
+S_VPREV = 11  # PID: previous rate (for the D term)
+S_DF = 12  # PID: low-pass filtered derivative of the measured rate (the D term's input)
+NS = 13
 
 # --- parameter vector layout ---------------------------------------------------------------------
 P_KIND = 0
@@ -68,7 +75,13 @@ P_K2 = 23
 P_A1 = 24
 P_A2 = 25
 P_DL = 26  # fal-form NLSEF linear zone
-NP = 27
+P_KPP = 27  # PID: position P gain kp_pos (1/s)
+P_KPV = 28  # PID: velocity P gain kp_vel (1/s)
+P_KIV = 29  # PID: velocity I gain ki_vel (1/s^2)
+P_KDV = 30  # PID: velocity D gain kd_vel (dimensionless; 0: no D term)
+P_DALPHA = 31  # PID: low-pass factor per step of the D term (1 - exp(-2 pi fc h); 1: unfiltered)
+P_ILIM = 32  # PID: integrator authority limit i_limit (acceleration units)
+NP = 33
 
 OBS_ZOH = 0.0
 OBS_EULER = 1.0
@@ -188,16 +201,62 @@ def channel_init(s, y, r, rdot):
     s[S_FH] = 0.0
     s[S_YPREV] = y
     s[S_U0] = 0.0
+    s[S_I] = 0.0
+    s[S_VPREV] = 0.0
+    s[S_DF] = 0.0
     s[S_INIT] = 1.0
+
+
+@jit
+def pid_step(s, p, y, ydot, r, rdot, rddot):
+    """PX4-style cascade on one axis; returns the virtual control u0 (before 1/b0 and limits).
+
+    ::
+
+        v_sp = rdot + kp_pos (r - y)
+        e_v  = v_sp - ydot                          (ydot NaN: backward difference of y)
+        I   += h ki_vel e_v,  |I| <= i_limit        (I kept times ki_vel, in acceleration units)
+        D    = low-pass(d ydot / dt)                (D on the measurement; skipped if kd_vel = 0)
+        u0   = rddot + kp_vel e_v + I - kd_vel D
+
+    Conditional integration: if the command of the last step (S_U0/b0) and what was really
+    applied (S_U, which a caller may overwrite after tilt/thrust limits) differ by more than
+    1e-6 and e_v would push the command further the same way, I is held.
+    """
+    h = p[P_H]
+    if math.isfinite(ydot):
+        rate = ydot
+    else:
+        rate = (y - s[S_YPREV]) / h
+    s[S_YPREV] = y
+    ev = rdot + p[P_KPP] * (r - y) - rate
+    b0 = p[P_B0]
+    excess = s[S_U0] / b0 - s[S_U]
+    if not (abs(excess) > 1e-6 and excess * b0 * ev > 0.0):
+        lim = p[P_ILIM]
+        s[S_I] = _clip(s[S_I] + h * p[P_KIV] * ev, -lim, lim)
+    u0 = rddot + p[P_KPV] * ev + s[S_I]
+    kd = p[P_KDV]
+    if kd != 0.0:
+        if s[S_INIT] < 2.0:  # first step: no previous rate, no derivative kick
+            s[S_VPREV] = rate
+            s[S_INIT] = 2.0
+        s[S_DF] += p[P_DALPHA] * ((rate - s[S_VPREV]) / h - s[S_DF])
+        s[S_VPREV] = rate
+        u0 -= kd * s[S_DF]
+    s[S_Z1] = y  # read-outs in the observer slots: what the law used, and the integrator's
+    s[S_Z2] = rate  # estimate of the disturbance acceleration (steady state: b0 u = I = -d)
+    s[S_Z3] = -s[S_I]
+    return u0
 
 
 @jit
 def channel_update(s, p, y, ydot, r, rdot, rddot):
     """One control step of a channel of any kind; returns the limited command u.
 
-    ``ydot`` is a measured rate, used by PD only (NaN: PD differentiates y).  Non-finite y, r,
-    rdot or rddot leave the state untouched and return NaN, so a bad sample never enters the
-    observer; the caller turns that into an error.
+    ``ydot`` is a measured rate, used by PD and PID only (NaN: they differentiate y).  Non-finite
+    y, r, rdot or rddot leave the state untouched and return NaN, so a bad sample never enters
+    the observer; the caller turns that into an error.
     """
     if not (math.isfinite(y) and math.isfinite(r) and math.isfinite(rdot) and math.isfinite(rddot)):
         return math.nan
@@ -223,6 +282,9 @@ def channel_update(s, p, y, ydot, r, rdot, rddot):
         else:
             u0 = p[P_K1] * fal(e1, p[P_A1], p[P_DL]) + p[P_K2] * fal(e2, p[P_A2], p[P_DL]) + rddot
         u = (u0 - s[S_Z3]) / b0
+    elif kind == KIND_PID:
+        u0 = pid_step(s, p, y, ydot, r, rdot, rddot)
+        u = u0 / b0
     else:
         if math.isfinite(ydot):
             rate = ydot

@@ -14,7 +14,7 @@ import numpy as np
 from . import geometry as G
 from . import kernels as K
 from ._jit import jit
-from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params
+from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params, pid_params
 
 AXES = ("x", "y", "z")
 
@@ -24,8 +24,9 @@ def position_update(S, P, M, pos, vel, rpos, rvel, racc, yaw, out):
     """One step of the three position channels and the attitude map; False on non-finite input.
 
     S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters.  ``vel`` is
-    the measured velocity (used by PD channels; NaN entries make PD differentiate).  ``out``:
-    the layout of :func:`geometry.accel_to_attitude` followed by the three raw commands.
+    the measured velocity (used by PD and PID channels; NaN entries make them differentiate).
+    ``out``: the layout of :func:`geometry.accel_to_attitude` followed by the three raw
+    commands.
     """
     for i in range(3):
         if not (math.isfinite(pos[i]) and math.isfinite(rpos[i]) and math.isfinite(rvel[i])
@@ -72,7 +73,9 @@ def axis_params(kind, i, h, gains):
             g.setdefault("kp", wc * wc)
             g.setdefault("kd", 2.0 * wc)
         return pd_params(h=h, **g)
-    raise ValueError(f"controller kind must be 'adrc', 'ladrc' or 'pd' (got {kind!r})")
+    if kind == "pid":
+        return pid_params(h=h, **g)
+    raise ValueError(f"controller kind must be 'adrc', 'ladrc', 'pd' or 'pid' (got {kind!r})")
 
 
 class PositionController:
@@ -81,7 +84,10 @@ class PositionController:
     ``PositionController(kind="ladrc", h=0.01, hover_thrust=0.5, wc=(2, 2, 3), wo=(10, 10, 15))``
 
     Gain keywords are those of the channel kind (``wc, wo, b0`` for 'ladrc'; ``r0, r, c, h1, ...``
-    for 'adrc'; ``kp, kd`` or ``wc`` for 'pd'), each a scalar or an (x, y, z) triple.  Thrust is
+    for 'adrc'; ``kp, kd`` or ``wc`` for 'pd'; ``wc`` or ``kp_pos, kp_vel, ki_vel, kd_vel`` and
+    ``i_limit, d_cutoff_hz`` for 'pid'), each a scalar or an (x, y, z) triple.  The PID channels'
+    integrators see the acceleration the limited setpoint commands, so they hold still while the
+    tilt or thrust limits cut their axis (conditional integration).  Thrust is
     normalised by ``hover_thrust`` or by ``mass`` and ``max_thrust`` (N).  ``tilt_max`` is in rad.
     """
 
@@ -109,7 +115,7 @@ class PositionController:
         """One step: returns (q [w, x, y, z], normalized thrust).
 
         ``pos``/``vel``: measured NED position and velocity (``vel`` may be None for ADRC kinds;
-        PD then differentiates).  ``ref_*``: reference and its derivatives (None: zero).
+        PD and PID then differentiate).  ``ref_*``: reference and its derivatives (None: zero).
         """
         pos = np.asarray(pos, dtype=np.float64)
         vel = self._nan3 if vel is None else np.asarray(vel, dtype=np.float64)
@@ -133,12 +139,14 @@ class PositionController:
 
     @property
     def z(self):
-        """(3, 3) observer estimates: row per axis, columns z1, z2, z3."""
+        """(3, 3) observer estimates: row per axis, columns z1, z2, z3 (PID: the position and
+        rate it used, and its integrator's disturbance estimate)."""
         return self._S[:, K.S_Z1:K.S_Z3 + 1].copy()
 
     @property
     def disturbance(self):
-        """Estimated total disturbance acceleration per axis (z3; zero for PD)."""
+        """Estimated total disturbance acceleration per axis (z3; zero for PD; PID: minus the
+        integrator's acceleration)."""
         return self._S[:, K.S_Z3].copy()
 
     @property
