@@ -100,11 +100,12 @@ class Experiment:
         return [(i, j, s) for i in range(len(self.scenarios))
                 for j in range(len(self.controllers)) for s in seeds]
 
-    def mission(self, i, j):
-        """The mission of scenario i flown by controller j."""
+    def mission(self, i, j, spec=None):
+        """The mission of scenario i flown by controller j (with ``spec`` instead of its own
+        :class:`~mavadrc.mission.ControllerSpec`, when given)."""
         sc = self.scenarios[i]
         m = copy.copy(sc.mission)
-        m.controller = self.controllers[j].spec
+        m.controller = spec if spec is not None else self.controllers[j].spec
         if sc.attitude_match:
             m.attitude_controller = MATCHING_ATTITUDE[self.controllers[j].kind]
         return m
@@ -306,12 +307,13 @@ def _yaw_step(t, yaw, ref_yaw):
             "steady_error_deg": float(abs(math.degrees(step * (1.0 - y[-1]))))}
 
 
-def run_inprocess(exp, i, j, seed, keep_log=False):
-    """Scenario i x controller j x seed on the fast path; returns (record, log or None)."""
+def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
+    """Scenario i x controller j x seed on the fast path; returns (record, log or None).
+    ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
     from .inprocess import L_ACC, L_ACC_CMD, L_POS, L_REF, L_REF_YAW, L_T, L_THRUST, L_YAW, \
         fly_inprocess
 
-    m = exp.mission(i, j)
+    m = exp.mission(i, j, spec)
     t0 = time.perf_counter()
     r = fly_inprocess(m, kind=exp.controllers[j].kind, seed=seed)
     wall = time.perf_counter() - t0

@@ -77,7 +77,7 @@ def _f32(v):
 
 @jit
 def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
-                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, times, Sc, Pc, Mc, refs,
+                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, times, Sc, Pc, Mc, INc, refs,
                 oracle, limits, origin, log):
     """Fly the mission steps of ``refs`` (N, 10: pos, vel, acc, yaw) from tick ``tick0``.
 
@@ -106,7 +106,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         if oracle:
             for i in range(3):
                 racc[i] -= dist[i]
-        ok = position_update(Sc, Pc, Mc, pos, vel, rpos, rvel, racc, refs[j, 9], out)
+        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, refs[j, 9], out)
         row = log[j]
         row[L_T] = times[j]
         for i in range(3):
@@ -243,7 +243,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     rows, status = closed_loop(
         v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
         packed.params, packed.state, eta, v._v_wind, v._f_ext, v._tau_ext, dt, int(v._tick),
-        fw.att_div, fw.pos_div, fw.pos_dt, per, times, ctrl._S, Pc, Mc, ref, oracle, limits,
+        fw.att_div, fw.pos_div, fw.pos_dt, per, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle,
+        limits,
         origin, log)
     steps = rows if status == STATUS_OK else rows - 1
     v._tick += steps * per

@@ -20,10 +20,11 @@ AXES = ("x", "y", "z")
 
 
 @jit
-def position_update(S, P, M, pos, vel, rpos, rvel, racc, yaw, out):
+def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out):
     """One step of the three position channels and the attitude map; False on non-finite input.
 
-    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters.  ``vel`` is
+    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters, IN: (3, 2)
+    the observers' input model per axis, [alpha, state] (see ``input_lag``).  ``vel`` is
     the measured velocity (used by PD and PID channels; NaN entries make them differentiate).
     ``out``: the layout of :func:`geometry.accel_to_attitude` followed by the three raw
     commands.
@@ -39,7 +40,10 @@ def position_update(S, P, M, pos, vel, rpos, rvel, racc, yaw, out):
     a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2])
     G.accel_to_attitude(a0, a1, a2, yaw, M, out)
     for i in range(3):
-        S[i, K.S_U] = out[G.O_ACC + i]
+        # the observers' input: the limited command through the input model (a first-order
+        # lag standing for the vehicle's attitude and motor response; alpha 1 = none)
+        IN[i, 1] += IN[i, 0] * (out[G.O_ACC + i] - IN[i, 1])
+        S[i, K.S_U] = IN[i, 1]
     out[G.NO] = a0
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
@@ -95,6 +99,18 @@ class PositionController:
                  tilt_max=math.radians(35.0), thrust_min=0.05, thrust_max=1.0, g=G.GRAVITY,
                  **gains):
         self.kind = kind
+        lag = gains.pop("input_lag", None)
+        self._IN = np.zeros((3, 2))
+        self._IN[:, 0] = 1.0
+        if lag is not None:
+            if kind not in ("ladrc", "adrc"):
+                raise ValueError("input_lag models the observers' input: it applies to the "
+                                 f"'ladrc' and 'adrc' kinds, not {kind!r}")
+            for i in range(3):
+                tau = float(_axis(lag, i, "input_lag"))
+                if not (math.isfinite(tau) and tau >= 0.0):
+                    raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
+                self._IN[i, 0] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
         self._S = np.zeros((3, K.NS))
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
@@ -107,6 +123,7 @@ class PositionController:
     def reset(self, pos=None):
         """Start again, at ``pos`` now or from the next measurement."""
         self._S[:] = 0.0
+        self._IN[:, 1] = 0.0
         if pos is not None:
             for i in range(3):
                 K.channel_init(self._S[i], float(pos[i]), 0.0, 0.0)
@@ -122,8 +139,8 @@ class PositionController:
         rp = pos if ref_pos is None else np.asarray(ref_pos, dtype=np.float64)
         rv = self._zero3 if ref_vel is None else np.asarray(ref_vel, dtype=np.float64)
         ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
-        if not position_update(self._S, self._P, self._M, pos, vel, rp, rv, ra, float(yaw),
-                               self._out):
+        if not position_update(self._S, self._P, self._M, self._IN, pos, vel, rp, rv, ra,
+                               float(yaw), self._out):
             raise nonfinite_arrays(pos=pos, ref_pos=rp, ref_vel=rv, ref_acc=ra, yaw=yaw)
         return self._out[G.O_Q:G.O_Q + 4].copy(), float(self._out[G.O_THRUST])
 

@@ -1,0 +1,185 @@
+"""`mavadrc tune`: search a controller's bandwidths to minimise the RMS error of an experiment.
+
+The search space is the bandwidth parameterisation every kind shares (Gao's for LADRC, the same
+shorthand for the others, see :func:`mavadrc.flight.make_controller`): horizontal and vertical
+controller bandwidths ``wc`` and, for the observer kinds, the observer-to-controller ratio
+``wo / wc`` and the time constants of the observers' input model (``input_lag``: horizontal, the
+vehicle's attitude response; vertical, its motors).  ``b0`` stays 1: the position channels command acceleration, and the vehicle file's
+hover thrust turns that into normalized thrust.
+
+The cost is the mean, over the chosen scenarios and seeds, of the RMS 3-D position error after
+each scenario's settling window (a run that is infeasible or stops at a safety limit costs
+10 m).  scipy's differential evolution searches it, evaluating a generation's candidates in
+parallel worker processes (``updating='deferred'``), each candidate's runs on the fast path.
+"""
+
+import copy
+import fnmatch
+import math
+import os
+import sys
+
+import numpy as np
+
+from .experiment import experiment_from_text, load_experiment, run_inprocess
+
+INFEASIBLE_COST = 10.0
+
+# (name, lower, upper) per kind; x -> gains in _gains()
+SPACES = {
+    "ladrc": (("wc_xy", 0.5, 8.0), ("wc_z", 0.5, 10.0), ("wo_ratio", 2.0, 10.0),
+              ("input_lag_xy", 0.0, 0.25), ("input_lag_z", 0.0, 0.15)),
+    "adrc": (("wc_xy", 0.5, 8.0), ("wc_z", 0.5, 10.0), ("wo_ratio", 2.0, 10.0),
+             ("input_lag_xy", 0.0, 0.25), ("input_lag_z", 0.0, 0.15)),
+    "pd": (("wc_xy", 0.5, 10.0), ("wc_z", 0.5, 10.0)),
+    "oracle": (("wc_xy", 0.5, 10.0), ("wc_z", 0.5, 10.0)),
+    "pid": (("wc_xy", 0.3, 6.0), ("wc_z", 0.3, 6.0)),
+}
+
+
+def _gains(kind, x):
+    wc = (float(x[0]), float(x[0]), float(x[1]))
+    g = {"wc": wc}
+    if kind in ("ladrc", "adrc"):
+        g["wo"] = tuple(float(x[2]) * w for w in wc)
+        g["input_lag"] = (float(x[3]), float(x[3]), float(x[4]))
+    return g
+
+
+def spec_with(spec, kind, x):
+    """A copy of ``spec`` with the bandwidth gains of parameter vector x (other keys kept, the
+    explicit gains that the bandwidths replace dropped)."""
+    s = copy.deepcopy(spec)
+    drop = {"kp", "kd", "h1", "beta", "kp_pos", "kp_vel", "ki_vel", "kd_vel"}
+    s.gains = {k: v for k, v in s.gains.items() if k not in drop}
+    s.gains.update(_gains(kind, x))
+    return s
+
+
+def cost(args):
+    """Mean RMS error after settling of one candidate (picklable: runs in a worker)."""
+    source, text, j, scenarios, seeds, x = args
+    exp = experiment_from_text(source, text)
+    kind = exp.controllers[j].kind
+    spec = spec_with(exp.controllers[j].spec, kind, x)
+    total = 0.0
+    n = 0
+    for i in scenarios:
+        for s in seeds:
+            rec, _ = run_inprocess(exp, i, j, s, spec=spec)
+            e = rec["after_settle"]["rms_error_m"]
+            total += e if rec["feasible"] and math.isfinite(e) else INFEASIBLE_COST
+            n += 1
+    return total / n
+
+
+class _Objective:
+    """Maps parameter vectors to costs through a pool (differential_evolution's ``workers``)."""
+
+    def __init__(self, source, text, j, scenarios, seeds):
+        self.base = (source, text, j, tuple(scenarios), tuple(seeds))
+
+    def __call__(self, x):
+        return cost((*self.base, tuple(float(v) for v in x)))
+
+
+def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, workers=None,
+         seed=0, stream=sys.stderr):
+    """Run the search; returns a dict with the best gains, its cost and the starting cost."""
+    from scipy.optimize import differential_evolution
+
+    exp = load_experiment(path)
+    names = [c.name for c in exp.controllers]
+    if controller not in names:
+        raise ValueError(f"no controller called {controller!r} (have: {', '.join(names)})")
+    j = names.index(controller)
+    kind = exp.controllers[j].kind
+    idx = [i for i, sc in enumerate(exp.scenarios) if fnmatch.fnmatchcase(sc.name, scenarios)]
+    if not idx:
+        raise ValueError(f"no scenario matches {scenarios!r}")
+    seed_list = exp.seeds if seeds is None else list(range(int(seeds)))
+    space = SPACES[kind]
+    bounds = [(lo, hi) for _, lo, hi in space]
+    obj = _Objective(exp.source, exp.text, j, idx, seed_list)
+    start = _start_cost(exp, j, idx, seed_list)
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    stream.write(f"tuning {controller} ({kind}) on {len(idx)} scenarios x {len(seed_list)} "
+                 f"seeds; starting gains cost {start:.4f} m\n")
+    evals = [0]
+
+    def report(xk, convergence=None):
+        evals[0] += 1
+        stream.write(f"  generation {evals[0]}: best {obj(xk):.4f} m at "
+                     + ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, xk)) + "\n")
+        stream.flush()
+
+    pool = None
+    try:
+        if n > 1:
+            import concurrent.futures as cf
+            import multiprocessing as mp
+
+            pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
+            mapper = pool.map
+        else:
+            mapper = map
+        res = differential_evolution(obj, bounds, maxiter=maxiter, popsize=popsize, seed=seed,
+                                     tol=1e-3, polish=False, updating="deferred",
+                                     workers=mapper, callback=report, init="sobol")
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    best = spec_with(exp.controllers[j].spec, kind, res.x)
+    return {"controller": controller, "kind": kind, "gains": best.gains, "cost_m": float(res.fun),
+            "start_cost_m": start, "x": {nm: float(v) for (nm, _, _), v in zip(space, res.x)},
+            "evaluations": int(res.nfev), "scenarios": [exp.scenarios[i].name for i in idx],
+            "seeds": seed_list, "spec": best}
+
+
+def _start_cost(exp, j, idx, seeds):
+    total = 0.0
+    n = 0
+    for i in idx:
+        for s in seeds:
+            rec, _ = run_inprocess(exp, i, j, s)
+            e = rec["after_settle"]["rms_error_m"]
+            total += e if rec["feasible"] and math.isfinite(e) else INFEASIBLE_COST
+            n += 1
+    return total / n
+
+
+def controller_yaml(result):
+    """The tuned controller as an experiment/mission ``controller`` entry (YAML text)."""
+    s = result["spec"]
+    lines = [f"# mavadrc tune: mean RMS error after settling {result['cost_m']:.4f} m "
+             f"(was {result['start_cost_m']:.4f} m) over {len(result['scenarios'])} scenarios x "
+             f"{len(result['seeds'])} seeds, {result['evaluations']} candidates",
+             f"name: {result['controller']}", f"type: {s.kind}", f"rate_hz: {s.rate_hz:g}",
+             f"tilt_max_deg: {s.tilt_max_deg:g}"]
+    for k, v in s.gains.items():
+        if isinstance(v, (tuple, list)):
+            lines.append(f"{k}: [{', '.join(f'{float(a):.4g}' for a in v)}]")
+        elif isinstance(v, bool):
+            lines.append(f"{k}: {'true' if v else 'false'}")
+        else:
+            lines.append(f"{k}: {v}")
+    return "\n".join(lines) + "\n"
+
+
+def main(args):
+    from sim.yamlio import ConfigError
+
+    try:
+        result = tune(args.experiment, args.controller, scenarios=args.scenarios,
+                      seeds=args.seeds, maxiter=args.maxiter, popsize=args.popsize,
+                      workers=args.workers, seed=args.seed)
+    except (ConfigError, OSError, ValueError) as exc:
+        print(f"mavadrc tune: {exc}", file=sys.stderr)
+        return 2
+    text = controller_yaml(result)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(text)
+        print(f"wrote {args.out}", file=sys.stderr)
+    sys.stdout.write(text)
+    return 0 if np.isfinite(result["cost_m"]) else 1
