@@ -216,18 +216,52 @@ def fly_figures(realtime_seconds=10.0, lockstep_seconds=60.0):
     return fig
 
 
-def all_figures(sitl=True):
+def compare_figures(seeds=10, mavlink=True):
+    """`mavadrc compare` on configs/experiments/thesis.yaml: wall time and runs per second of
+    the whole matrix for one seed and for ``seeds`` seeds (local worker processes, one per
+    core), and one run in process against the same run over MAVLink in lockstep."""
+    import tempfile
+
+    from .compare import run_matrix
+    from .experiment import load_experiment, run_inprocess, run_mavlink
+
+    exp = load_experiment("thesis")
+    fig = {}
+    run_matrix(exp, seeds=[0], progress=False, keep_logs_seed=None)  # compile / load caches
+    for n in (1, seeds):
+        records, _, wall = run_matrix(exp, seeds=list(range(n)), progress=False)
+        fig[f"compare_thesis_{n}seed_wall_s"] = wall
+        fig[f"compare_thesis_{n}seed_runs_per_s"] = len(records) / wall
+    i = [sc.name for sc in exp.scenarios].index("spiral in wind, physical wind")
+    j = [c.kind for c in exp.controllers].index("ladrc")
+    t0 = time.perf_counter()
+    rec, _ = run_inprocess(exp, i, j, 0)
+    fig["compare_inprocess_run_s"] = time.perf_counter() - t0
+    fig["compare_inprocess_sim_x_realtime"] = rec["duration_s"] / fig["compare_inprocess_run_s"]
+    if mavlink:
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            run_mavlink(exp, i, j, 0, tmp)
+            fig["compare_mavlink_run_s"] = time.perf_counter() - t0
+        fig["ratio_mavlink_over_inprocess_run"] = \
+            fig["compare_mavlink_run_s"] / fig["compare_inprocess_run_s"]
+    return fig
+
+
+def all_figures(sitl=True, compare=True, compare_seeds=10):
     fig = control_figures()
     from sim.bench import physics_figures
     fig.update(physics_figures())
     if sitl:
         fig.update(sitl_figures())
         fig.update(fly_figures())
+    if compare:
+        fig.update(compare_figures(compare_seeds, mavlink=sitl))
     return fig
 
 
-def main(as_json=False, out=sys.stdout, sitl=True):
-    fig = all_figures(sitl)
+def main(as_json=False, out=sys.stdout, sitl=True, compare=True, compare_seeds=10):
+    fig = all_figures(sitl, compare, compare_seeds)
     if as_json:
         out.write(json.dumps(fig) + "\n")
         return 0

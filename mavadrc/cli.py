@@ -7,7 +7,8 @@ import sys
 def _bench(args):
     from . import bench
 
-    return bench.main(as_json=args.json, sitl=not args.no_sitl)
+    return bench.main(as_json=args.json, sitl=not args.no_sitl, compare=not args.no_compare,
+                      compare_seeds=args.compare_seeds)
 
 
 def _sitl(args):
@@ -51,6 +52,10 @@ def build_parser():
                    help="print one JSON object mapping figure names (units in the name) to numbers")
     b.add_argument("--no-sitl", action="store_true",
                    help="skip the MAVLink figures (they start the vehicle as a process, ~25 s)")
+    b.add_argument("--no-compare", action="store_true",
+                   help="skip the experiment figures (the thesis matrix, ~1 min)")
+    b.add_argument("--compare-seeds", type=int, default=10,
+                   help="seeds for the thesis-matrix figure (default 10; 100 takes minutes)")
     b.set_defaults(func=_bench)
     f = sub.add_parser("fly", help="fly a mission (against the bundled vehicle unless --connect)")
     f.add_argument("mission", help="mission YAML file (or a name in configs/missions)")
@@ -92,9 +97,11 @@ def build_parser():
     t.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     t.add_argument("--controller", required=True,
                    help="the experiment's controller (by name) whose gains are searched")
-    t.add_argument("--scenarios", default="*",
-                   help="scenario names to tune on (shell pattern, default: all)")
-    t.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the file's)")
+    t.add_argument("--scenarios", action="append", default=None,
+                   help="scenario names to tune on (shell pattern; repeat for several; "
+                        "default: all)")
+    t.add_argument("--seeds", type=int, default=None,
+                   help="number of wind seeds, from 1000 up (default: as many as the file's)")
     t.add_argument("--maxiter", type=int, default=20, help="differential evolution generations")
     t.add_argument("--popsize", type=int, default=8, help="population size per parameter")
     t.add_argument("--workers", type=int, default=None,

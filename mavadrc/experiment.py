@@ -158,10 +158,8 @@ def _parse(source, text):
         top.error("defaults", "must be a mapping of mission keys")
     controllers = []
     for cs in top.sections("controllers"):
-        label = cs.string("name", None)
-        spec = _read_controller(cs, kinds=CONTROLLER_KINDS, finish=False)
-        cs.finish()
-        label = label or spec.kind.upper()
+        spec = _read_controller(cs, kinds=CONTROLLER_KINDS)
+        label = spec.name or spec.kind.upper()
         if any(c.name == label for c in controllers):
             cs.error("name", f"two controllers are called {label!r}")
         controllers.append(ControllerEntry(label, spec))
@@ -254,8 +252,13 @@ def metric(record, path):
 
 
 def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, thrust_min,
-              thrust_max, aborted=None, yaw=None, ref_yaw=None, dt=None):
-    """The record's figures from a run's per-step arrays (either path)."""
+              thrust_max, aborted=None, yaw=None, ref_yaw=None, dt=None, ref_acc=None,
+              true_dist=None, hover_thrust=None):
+    """The record's figures from a run's per-step arrays (either path).
+
+    With the reference acceleration, the simulator's true disturbance and the hover thrust, the
+    thrust the *scenario* demands is checked too: |a_ref - d - g e3| * hover / g against the
+    thrust limit, whatever the controller did."""
     t = np.asarray(t, dtype=float)
     out = error_figures(t, ref, pos)
     out["after_settle"] = error_figures(t, ref, pos, settle_s)
@@ -273,13 +276,26 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
     out["thrust_saturated_s"] = float(at_limit.sum() * h)
     out["limited_s"] = float(limited.sum() * h)
     share = float(at_limit[track].mean()) if n_track else 1.0
+    need_share = 0.0
+    if ref_acc is not None and true_dist is not None and hover_thrust is not None and n_track:
+        need = np.asarray(ref_acc, dtype=float) - np.asarray(true_dist, dtype=float)
+        need[:, 2] -= 9.80665
+        demand = np.linalg.norm(need, axis=1) * hover_thrust / 9.80665
+        ok = np.isfinite(demand[track])
+        if ok.any():
+            need_share = float((demand[track][ok] > thrust_max).mean())
+            out["thrust_demand_max"] = float(demand[track][ok].max())
     completed = aborted is None and t.size > 0 and t[-1] >= duration - 1e-6
     out["completed"] = bool(completed)
     out["aborted"] = aborted
     out["duration_s"] = float(t[-1]) if t.size else 0.0
-    out["feasible"] = bool(completed and share <= SATURATION_SHARE)
+    out["feasible"] = bool(completed and share <= SATURATION_SHARE
+                           and need_share <= SATURATION_SHARE)
     if not completed:
         out["infeasible_reason"] = f"{aborted or 'stopped early'} at {out['duration_s']:.1f} s"
+    elif need_share > SATURATION_SHARE:
+        out["infeasible_reason"] = (f"the scenario needs up to {out['thrust_demand_max']:.1f}x "
+                                    "the vehicle's maximum thrust")
     elif share > SATURATION_SHARE:
         out["infeasible_reason"] = f"thrust at its limit {100 * share:.0f} % of the tracking window"
     if yaw is not None and ref_yaw is not None:
@@ -310,8 +326,8 @@ def _yaw_step(t, yaw, ref_yaw):
 def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     """Scenario i x controller j x seed on the fast path; returns (record, log or None).
     ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
-    from .inprocess import L_ACC, L_ACC_CMD, L_POS, L_REF, L_REF_YAW, L_T, L_THRUST, L_YAW, \
-        fly_inprocess
+    from .inprocess import L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T, \
+        L_THRUST, L_YAW, fly_inprocess
 
     m = exp.mission(i, j, spec)
     t0 = time.perf_counter()
@@ -324,6 +340,8 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
                          settle_s=exp.scenarios[i].settle_s, duration=r.duration,
                          thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
                          aborted=r.aborted, dt=1.0 / m.controller.rate_hz,
+                         ref_acc=L[:, L_REF_ACC:L_REF_ACC + 3],
+                         true_dist=L[:, L_DIST:L_DIST + 3], hover_thrust=_hover(m),
                          **_yaw_args(exp, i, L[:, L_YAW], L[:, L_REF_YAW])))
     rec["wall_s"] = wall
     return rec, (L if keep_log else None)
@@ -365,11 +383,21 @@ def run_mavlink(exp, i, j, seed, out_dir):
                          col("acc_applied_"), tab["thrust"], settle_s=exp.scenarios[i].settle_s,
                          duration=traj.duration, thrust_min=m.controller.thrust_min,
                          thrust_max=m.controller.thrust_max, aborted=summary.get("aborted"),
-                         dt=1.0 / m.controller.rate_hz,
+                         dt=1.0 / m.controller.rate_hz, ref_acc=col("ref_a"),
+                         true_dist=col("true_dist_"), hover_thrust=_hover(m),
                          **_yaw_args(exp, i, tab["yaw"], tab["ref_yaw"])))
     rec["wall_s"] = wall
     rec["record_folder"] = str(folder)
     return rec, None
+
+
+def _hover(m):
+    """Normalized hover thrust of the mission's vehicle (what 1 g takes)."""
+    if m.hover_thrust is not None:
+        return m.hover_thrust
+    from sim.params import load_vehicle
+
+    return load_vehicle(m.vehicle or "crazyflie").hover_thrust_norm
 
 
 def _yaw_args(exp, i, yaw, ref_yaw):

@@ -56,7 +56,8 @@ L_DIST = 24  # 3: the simulator's true disturbance acceleration
 L_WRENCH = 27  # 4: achieved [T, tau_x, tau_y, tau_z] (the thesis's U1..U4)
 L_YAW = 31
 L_REF_YAW = 32
-NLOG = 33
+L_REF_ACC = 33  # 3
+NLOG = 36
 
 STATUS_OK = 0
 STATUS_BREACH = 1
@@ -123,6 +124,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         G.quat_to_euler(e, eul)
         row[L_YAW] = eul[2]
         row[L_REF_YAW] = refs[j, 9]
+        for i in range(3):
+            row[L_REF_ACC + i] = refs[j, 6 + i]
         if not ok:
             return j + 1, 2
         n2 = 0.0

@@ -35,6 +35,7 @@ SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints",
 @dataclass
 class ControllerSpec:
     kind: str = "ladrc"
+    name: str = None
     rate_hz: float = 100.0
     gains: dict = field(default_factory=dict)  # keyword -> scalar or (x, y, z)
     tilt_max_deg: float = 35.0
@@ -297,8 +298,9 @@ def _read_segment(sec):
     return kind, spec, inner
 
 
-def _read_controller(sec, kinds=None, finish=True):
+def _read_controller(sec, kinds=None):
     c = ControllerSpec()
+    c.name = sec.string("name", None)  # a label (experiments' tables; mavadrc tune writes one)
     c.kind = sec.string("type", "ladrc", choices=kinds or KINDS)
     c.rate_hz = sec.number("rate_hz", 100.0, gt=0.0, le=1000.0)
     c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
@@ -321,8 +323,7 @@ def _read_controller(sec, kinds=None, finish=True):
         c.gains["td"] = sec.boolean("td")
     if sec.has("eso_gains"):
         c.gains["eso_gains"] = sec.string("eso_gains", choices=("han", "thesis"))
-    if finish:
-        sec.finish()
+    sec.finish()
     return c
 
 
