@@ -63,7 +63,7 @@ def build_parser():
                    help="fly a vehicle at this MAVLink URL (udpin:0.0.0.0:14540, udp://:14540, "
                         "udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0:57600) instead of starting "
                         "the bundled one")
-    f.add_argument("--controller", choices=("adrc", "ladrc", "pd"), default=None,
+    f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid"), default=None,
                    help="position controller (default: the mission's)")
     f.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
     f.add_argument("--lockstep", action="store_true",

@@ -62,11 +62,22 @@ def default_gains(kind):
     return {"wc": (2.5, 2.5, 3.0)}
 
 
-def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None):
+def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
+                    vehicle=None, attitude_controller="px4"):
+    """The position controller of a mission's controller spec.  ``vehicle`` (a bundled vehicle
+    name or file) resolves ``input_lag: auto`` by measuring that vehicle's response
+    (:func:`sim.vehicle.response_time_constants`)."""
     kind = kind or spec.kind
     gains = default_gains(kind)  # the mission's gains, where given, override these
     if kind == spec.kind:
         gains.update(spec.gains)
+    if gains.get("input_lag") == "auto":
+        if vehicle is None:
+            raise FlightError("input_lag: auto needs the mission's vehicle file (vehicle: NAME); "
+                              "otherwise give the lags in seconds")
+        from sim.vehicle import response_time_constants
+        tau_xy, tau_z = response_time_constants(vehicle, attitude_controller)
+        gains["input_lag"] = (tau_xy, tau_xy, tau_z)
     if kind == "pd" and "kp" in gains and "wc" in gains:
         gains.pop("wc")
     # pid: wc gives every gain (channels.pid_gains); kp_pos, kp_vel, ki_vel, kd_vel given by the
@@ -175,7 +186,9 @@ class Flight:
             name = "MPC_THR_HOVER" if link.autopilot == "px4" else "MOT_THST_HOVER"
             self.hover = float(link.param_read(name))
             self.say(f"hover thrust {self.hover:.3f} from the vehicle's {name}")
-        self.ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind)
+        self.ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind,
+                                    vehicle=self.m.vehicle,
+                                    attitude_controller=self.m.attitude_controller)
         self.ctrl.reset(np.zeros(3))  # compile every kernel of the loop now, not mid-flight
         self.ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         self.ctrl.reset()

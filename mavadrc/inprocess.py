@@ -202,7 +202,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         raise ValueError(f"controller rate {spec.rate_hz:g} Hz must divide the physics rate "
                          f"{1.0 / dt:g} Hz for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
-    ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind)
+    ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
+                           vehicle=v.params, attitude_controller=mission.attitude_controller)
     # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START
     v.step(round(ARM_AT / h) * h)
     r = v.reported()

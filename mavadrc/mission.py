@@ -316,7 +316,10 @@ def _read_controller(sec, kinds=None):
             bound = {"ge": 0.0} if zero_ok else {"gt": 0.0}
             c.gains[key] = tuple(sec.vector(key, 3, scalar_ok=True, **bound))
     if sec.has("input_lag"):
-        c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
+        if sec.data["input_lag"] == "auto":
+            c.gains["input_lag"] = sec.string("input_lag")
+        else:
+            c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
     if sec.has("beta"):
         c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
     if sec.has("td"):
