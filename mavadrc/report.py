@@ -217,8 +217,9 @@ def summary_table(exp, records):
     """A compact plain-text table for the terminal: RMS 3-D after settling per scenario."""
     groups = grouped(exp, records)
     names = [c.name for c in exp.controllers]
-    w = max(len(sc.name) for sc in exp.scenarios)
-    lines = ["", f"  {'RMS error after settling (m)':<{w}}  " + "".join(f"{n:>14}" for n in names)]
+    title = "RMS error after settling (m)"
+    w = max([len(sc.name) for sc in exp.scenarios] + [len(title)])
+    lines = ["", f"  {title:<{w}}  " + "".join(f"{n:>14}" for n in names)]
     for sc in exp.scenarios:
         cells = []
         for n in names:

@@ -4,7 +4,8 @@ The search space is the bandwidth parameterisation every kind shares (Gao's for 
 shorthand for the others, see :func:`mavadrc.flight.make_controller`): horizontal and vertical
 controller bandwidths ``wc`` and, for the observer kinds, the observer-to-controller ratio
 ``wo / wc`` (up to 6: beyond it the loop through the vehicle's attitude response has too little
-margin left).  The observers' input model is not searched: it is a property of the vehicle,
+margin left); for the classical ADRC also fhan's acceleration bound ``r`` and fal's linear zone
+``delta``.  The observers' input model is not searched: it is a property of the vehicle,
 measured (``input_lag: auto``), not a knob.  ``b0`` stays 1: the position channels command acceleration, and the vehicle file's
 hover thrust turns that into normalized thrust.
 
@@ -30,7 +31,8 @@ TUNING_SEEDS = 1000  # the first seed a search uses
 # (name, lower, upper) per kind; x -> gains in _gains()
 SPACES = {
     "ladrc": (("wc_xy", 0.5, 4.0), ("wc_z", 0.5, 8.0), ("wo_ratio", 2.0, 6.0)),
-    "adrc": (("wc_xy", 0.5, 4.0), ("wc_z", 0.5, 8.0), ("wo_ratio", 2.0, 6.0)),
+    "adrc": (("wc_xy", 0.5, 4.0), ("wc_z", 0.5, 8.0), ("wo_ratio", 2.0, 6.0),
+             ("r", 2.0, 40.0), ("delta", 0.01, 0.5)),
     "pd": (("wc_xy", 0.5, 10.0), ("wc_z", 0.5, 10.0)),
     "oracle": (("wc_xy", 0.5, 10.0), ("wc_z", 0.5, 10.0)),
     "pid": (("wc_xy", 0.3, 6.0), ("wc_z", 0.3, 6.0)),
@@ -42,6 +44,9 @@ def _gains(kind, x):
     g = {"wc": wc}
     if kind in ("ladrc", "adrc"):
         g["wo"] = tuple(float(x[2]) * w for w in wc)
+    if kind == "adrc":  # Han's nonlinear parameters: fhan's acceleration bound, fal's linear zone
+        g["r"] = (float(x[3]),) * 3
+        g["delta"] = (float(x[4]),) * 3
     return g
 
 
