@@ -22,6 +22,7 @@ The ``oracle`` controller exists only here: the PD law with the simulator's true
 acceleration fed forward, the floor any controller with the same feedback gains could reach.
 """
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -29,6 +30,7 @@ import numpy as np
 
 from sim import physics as phys
 from sim.firmware import attitude as A
+from sim.params import load_vehicle
 from sim.vehicle import SimVehicle, advance_wind
 from sim.wind import Wind, pack_wind
 
@@ -192,7 +194,7 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     spec = mission.controller
     seed = mission.seed if seed is None else seed
     wind = mission.wind if wind is None else wind
-    v = SimVehicle(mission.vehicle or "crazyflie", wind=wind, seed=seed,
+    v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,
                    attitude_controller=mission.attitude_controller,
                    **dict(vehicle_options or {}))
     h = 1.0 / spec.rate_hz
@@ -254,6 +256,12 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     v._tick += steps * per
     v._target_time = v._tick * dt
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0)
+
+
+@functools.lru_cache(maxsize=16)
+def _vehicle_params(name):
+    """A vehicle file read once per process (runs of an experiment share a few vehicles)."""
+    return load_vehicle(name)
 
 
 def _references(traj, times, h):

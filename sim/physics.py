@@ -254,6 +254,12 @@ def disturbance_accel(x, omega_cmd, P, v_wind, f_ext, tau_ext, out):
 
 
 @njit(cache=True, error_model="numpy")
+def rk4_step(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt, ws):
+    """:func:`step` with the (5, NX) scratch passed in (no allocation: for compiled loops)."""
+    _rk4(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt, ws)
+
+
+@njit(cache=True, error_model="numpy")
 def step_n(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt, n):
     """Advance x in place by n RK4 steps of dt with all inputs held."""
     ws = np.empty((5, NX))

@@ -31,7 +31,7 @@ from .firmware import position as PL
 from .firmware.mixer import Mixer
 from .params import VehicleParams, load_vehicle
 from .sensors import Sensors
-from .wind import Wind, load_wind, pack_wind, wind_step_packed
+from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
 
 MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
 
@@ -81,14 +81,16 @@ def advance_wind(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta,
                  tau_ext, dt, n, tick, att_div, pos_div, pos_dt):
     """:func:`advance` with a packed wind (:func:`sim.wind.pack_wind`) evaluated every step at
     the step's start; ``eta`` holds the Dryden normals of these n steps, row by row."""
+    scratch = np.empty(WIND_SCRATCH)
+    ws = np.empty((5, phys.NX))
     for k in range(n):
         t = tick + k
-        wind_step_packed(wp, dstate, eta, k, t * dt, dt, x, v_wind, f_ext, tau_ext)
+        wind_step_packed(wp, dstate, eta, k, t * dt, dt, x, v_wind, f_ext, tau_ext, scratch)
         if t % pos_div == 0:
             PL.land_detect(fs, fp, sp[A.SP_THRUST], xm[3:6], pos_dt)
         if t % att_div == 0:
             A.inner_step(fs, fp, S, P, W, mx, xm, sp, omega, wk)
-        phys.step(x, omega, pv, v_wind, f_ext, tau_ext, dt)
+        phys.rk4_step(x, omega, pv, v_wind, f_ext, tau_ext, dt, ws)
 
 
 def child_seeds(seed, n=2):

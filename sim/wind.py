@@ -199,10 +199,15 @@ def _dryden_run(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy, ou
     normals, eps_* = V dt / L_* per step, (ux, uy) the horizontal unit vector of u; v is 90 deg
     to its right, w is down.
     """
+    _dryden_run_into(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy, out,
+                     np.empty(7), np.empty(7))
+
+
+@njit(cache=True, error_model="numpy")
+def _dryden_run_into(state, eta, eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy, out, cv, cw):
+    """:func:`_dryden_run` with the filters' coefficient arrays (7 each) passed in."""
     a = math.exp(-eps_u)
     b = math.sqrt(-math.expm1(-2.0 * eps_u))
-    cv = np.empty(7)
-    cw = np.empty(7)
     _dryden2_coeffs(eps_v, cv)
     _dryden2_coeffs(eps_w, cw)
     s3 = math.sqrt(3.0)
@@ -586,6 +591,7 @@ WP_NSINE = 16
 WP_ITEMS = 17      # gusts: [ax, ay, az, t_start, t_rise, t_hold]; then sines: [ax, ay, az, f, phase]
 GUST_SIZE = 6
 SINE_SIZE = 5
+WIND_SCRATCH = 17
 
 
 class PackedWind:
@@ -696,10 +702,10 @@ def _gust_factor(s, t_rise, t_hold):
 
 
 @njit(cache=True, error_model="numpy")
-def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out):
+def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out, scratch):
     """The packed wind over [t, t + dt] for state x (position x[0:3], velocity x[3:6]):
     writes v_out, f_out, tau_out as :meth:`Wind.step` returns them; ``eta[k]`` is the Dryden
-    part's row of normals for this step."""
+    part's row of normals for this step; ``scratch``: (WIND_SCRATCH,) work space."""
     alt = max(-x[2], 0.0)
     sc = _profile_scale(wp, alt)
     mx = wp[WP_MEAN] * sc
@@ -726,9 +732,9 @@ def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out):
         else:
             ux = 1.0
             uy = 0.0
-        out = np.empty((1, 3))
-        _dryden_run(dstate, eta[k:k + 1], travel / l_u, travel / l_u, travel / l_w, sig_u, sig_u,
-                    sigma_w, ux, uy, out)
+        out = scratch[0:3].reshape((1, 3))
+        _dryden_run_into(dstate, eta[k:k + 1], travel / l_u, travel / l_u, travel / l_w, sig_u,
+                         sig_u, sigma_w, ux, uy, out, scratch[3:10], scratch[10:17])
         v_out[0] += out[0, 0]
         v_out[1] += out[0, 1]
         v_out[2] += out[0, 2]
