@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .experiment import metric
+from .experiment import SATURATION_SHARE, metric
 
 TABLE_METRICS = (
     ("RMS x", "after_settle.rms_error_xyz_m.0"),
@@ -70,9 +70,9 @@ def feasible(recs):
     return all(r.get("feasible", False) for r in recs)
 
 
-def _status(recs):
+def _status(recs, via_mavlink=False):
     if not recs:
-        return "not run"
+        return "not run (the oracle runs in process only)" if via_mavlink else "not run"
     bad = [r for r in recs if not r.get("feasible", False)]
     if not bad:
         return "ok"
@@ -105,7 +105,7 @@ def scenario_table(exp, sc, groups):
         cells = [c.name]
         for _, path in TABLE_METRICS:
             cells.append(_fmt(*stat(recs, path), digits=2 if path.endswith("_s") else 3))
-        cells.append(_status(recs))
+        cells.append(_status(recs, c.kind == "oracle"))
         if has_thesis:
             cells.append(thesis_cell(sc, c))
         lines.append("| " + " | ".join(cells) + " |")
@@ -205,7 +205,8 @@ def check_goals(exp, groups):
             what = f"{c} / {g['ratio_to']}" if g["ratio_to"] else c
             bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else \
                 f">= {g['at_least']:g}"
-            text = g["text"] or f"{what}: `{g['metric']}` {bound} on {g['scenario']!r}"
+            text = f"{c}: " + g["text"] if g["text"] else \
+                f"{what}: `{g['metric']}` {bound} on {g['scenario']!r}"
             detail = f"worst: {worst[2]:.4g} ({worst[0]})"
             if not worst[1] and math.isfinite(worst[2]) and g["at_most"] is not None:
                 detail += f", missed by {worst[2] / g['at_most']:.2f}x"
@@ -244,8 +245,9 @@ def write_report(folder, exp, records, meta, logs):
     L = [f"# {exp.name}", ""]
     if exp.description:
         L += [exp.description.strip(), ""]
+    ns = len(meta["seeds"])
     L += [f"Experiment file `{exp.source}`; {meta['runs']} runs ({len(exp.scenarios)} scenarios "
-          f"x {len(exp.controllers)} controllers x {len(meta['seeds'])} seeds), "
+          f"x {len(exp.controllers)} controllers x {ns} seed{'s' if ns != 1 else ''}), "
           f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
           f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
           f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", "",
@@ -254,9 +256,11 @@ def write_report(folder, exp, records, meta, logs):
           "mean ± std over seeds; `joining max` is the largest error before it. `effort` is the "
           "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
           "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
-          "command. A scenario is **infeasible** for a controller when its thrust sits at a limit "
-          f"more than {100 * 0.1:.0f} % of the tracking window or the run stopped at a safety "
-          "limit.", ""]
+          "command. A run is **infeasible** when the scenario demands more thrust than the "
+          "vehicle has (reference acceleration minus the true disturbance, against the thrust "
+          "limit), or the controller's thrust sits at a limit, for more than "
+          f"{100 * SATURATION_SHARE:.0f} % of the tracking window, or the run stopped at a "
+          "safety limit.", ""]
     goals = check_goals(exp, groups)
     if goals:
         L += ["## Goals", ""]
@@ -288,9 +292,9 @@ def _slug(name):
 
 
 def make_figures(folder, exp, groups, logs):
-    """Thesis-style figures of the first seed: per scenario marked ``figure``-worthy (all of
-    them, at most 12), the 3-D path against the reference, the error over time, the observers'
-    disturbance estimate against the truth, and U1..U4; plus an overview bar chart."""
+    """Thesis-style figures of the first seed, per scenario some controller could fly: the 3-D
+    path against the reference, the error over time, the observers' disturbance estimate
+    against the truth, and U1..U4; plus an overview bar chart."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -322,7 +326,9 @@ def make_figures(folder, exp, groups, logs):
     fig.savefig(fig_dir / "overview.png", dpi=110)
     plt.close(fig)
     out["overview"] = "figures/overview.png"
-    chosen = [sc for sc in exp.scenarios][:12]
+    # every scenario that at least one controller could fly (an all-infeasible one is a table)
+    chosen = [sc for sc in exp.scenarios
+              if any(feasible(groups.get((sc.name, c.name), [])) for c in exp.controllers)]
     for sc in chosen:
         runs = [(c, logs.get((exp.scenarios.index(sc), j))) for j, c in enumerate(exp.controllers)]
         runs = [(c, L) for c, L in runs if L is not None and len(L)]
