@@ -191,7 +191,8 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
     write_results(folder, exp, records, meta)
     from .report import write_report
 
-    write_report(folder, exp, records, meta, logs if figures else {})
+    write_report(folder, exp, records, meta, logs if figures else {},
+                 workers=workers if workers is not None else (os.cpu_count() or 1))
     stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s); "
                  f"report in {folder / 'report.md'}\n")
     return folder, records

@@ -25,7 +25,8 @@ An experiment file (``configs/experiments/*.yaml``)::
       - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
          metric: after_settle.max_error_m, at_most: 0.05}
       - {scenario: "*", controllers: [ADRC], metric: after_settle.rms_error_m,
-         ratio_to: PD, at_most: 0.333}
+         ratio_to: PD, at_most: 0.333, over: all}   # all: pooled over the scenarios;
+                                                     # each (default): every scenario
     breaks:                       # where a controller breaks along a series
       - {series: circle speed, metric: after_settle.max_error_m, above: 0.5}
 
@@ -221,7 +222,8 @@ def _parse(source, text):
              "controllers": [str(c) for c in gs.raw("controllers")],
              "ratio_to": gs.string("ratio_to", None),
              "at_most": gs.number("at_most", None), "at_least": gs.number("at_least", None),
-             "text": gs.string("text", "")}
+             "text": gs.string("text", ""),
+             "over": gs.string("over", "each", choices=("each", "all"))}
         names = {c.name for c in controllers}
         for c in g["controllers"] + ([g["ratio_to"]] if g["ratio_to"] else []):
             gs.check("controllers", c in names, f"no controller called {c!r}")

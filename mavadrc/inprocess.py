@@ -161,6 +161,38 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     return refs.shape[0], 0
 
 
+@jit
+def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext, tau_ext,
+          dt, tick0, att_div, pos_div, pos_dt, per, thrusts):
+    """The flight's ground phase, one setpoint per control period: level at the measured
+    heading (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it) with thrust ``thrusts[j]``
+    (idle, then the spool-up ramp), then ``per`` physics steps."""
+    e = np.empty(4)
+    eul = np.empty(3)
+    tick = tick0
+    for j in range(thrusts.shape[0]):
+        for i in range(4):
+            e[i] = x[phys.IX_Q + i]
+        G.quat_to_euler(e, eul)
+        yaw = _f32(eul[2])
+        q0 = _f32(math.cos(0.5 * yaw))
+        q3 = _f32(math.sin(0.5 * yaw))
+        nq = math.sqrt(q0 * q0 + q3 * q3)
+        sp[A.SP_Q] = q0 / nq
+        sp[A.SP_Q + 1] = 0.0
+        sp[A.SP_Q + 2] = 0.0
+        sp[A.SP_Q + 3] = q3 / nq
+        sp[A.SP_ATT_VALID] = 1.0
+        for i in range(3):
+            sp[A.SP_RATE_VALID + i] = 0.0
+            sp[A.SP_RATES + i] = 0.0
+        sp[A.SP_THRUST] = min(max(thrusts[j], 0.0), 1.0)
+        advance_wind(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                     eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt, per,
+                     tick, att_div, pos_div, pos_dt)
+        tick += per
+
+
 @dataclass
 class InProcessRun:
     """The per-step log of one run (columns L_*), its phases and how it ended."""
@@ -212,6 +244,25 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     origin = f32(r.position)
     traj, phases = mission.build_trajectory(origin)
     v.arm()
+    # idle and spool-up setpoints up to the sample before MISSION_START: one compiled call
+    tick0 = int(v._tick)
+    n_pre = int(math.ceil((MISSION_START - ARM_AT) / h)) + 2
+    ts_pre = boot_seconds(tick0 + per * np.arange(n_pre), dt)
+    n_pre = int(np.argmax(ts_pre >= MISSION_START - 1e-9))
+    start = MISSION_START - Flight.SPOOL_S
+    k_pre = np.clip((ts_pre[:n_pre] - start) / Flight.SPOOL_S, 0.0, 1.0)
+    thrusts = f32(0.8 * hover * k_pre)
+    packed = v._packed if v._packed is not None else pack_wind(Wind())
+    if v._packed is None and v.wind is not None:
+        raise ValueError("this wind has no compiled form (sim.wind.pack_wind); the in-process "
+                         "path needs one")
+    fw = v.fw
+    spool(v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
+          packed.params, packed.state, packed.normals(n_pre * per), v._v_wind, v._f_ext,
+          v._tau_ext, dt, tick0, fw.att_div, fw.pos_div, fw.pos_dt, per, thrusts)
+    v._tick += n_pre * per
+    v._target_time = v._tick * dt
+    v._mode = "attitude"
     t0 = None
     while t0 is None:
         tick = v._tick
@@ -233,14 +284,7 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     n = int(done[0]) + 1 if done.size else n_max
     times = times[:n]
     ref = _references(traj, times, h)
-    packed = v._packed
-    if packed is None and v.wind is not None:
-        raise ValueError("this wind has no compiled form (sim.wind.pack_wind); the in-process "
-                         "path needs one")
-    if packed is None:
-        packed = pack_wind(Wind())  # calm: the packed form of no wind is all zeros
     eta = packed.normals(n * per)
-    fw = v.fw
     log = np.full((n, NLOG), math.nan)
     sf = mission.safety
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,

@@ -183,6 +183,9 @@ def check_goals(exp, groups):
     out = []
     for g in exp.goals:
         scs = [sc for sc in exp.scenarios if fnmatch.fnmatchcase(sc.name, g["scenario"])]
+        if g.get("over") == "all" and scs:
+            out.extend(_pooled_goal(g, scs, groups))
+            continue
         for c in g["controllers"]:
             worst = None
             for sc in scs:
@@ -214,6 +217,34 @@ def check_goals(exp, groups):
     return out
 
 
+def _pooled_goal(g, scs, groups):
+    """A goal over the scenarios pooled: the mean of the metric over all their runs (and, for a
+    ratio, over the reference controller's runs of the same scenarios)."""
+    out = []
+
+    def pooled(name):
+        recs = [r for sc in scs for r in groups.get((sc.name, name), [])]
+        return stat(recs, g["metric"])[0], all(r.get("feasible", False) for r in recs)
+
+    for c in g["controllers"]:
+        m, ok = pooled(c)
+        what = c
+        if g["ratio_to"]:
+            base, _ = pooled(g["ratio_to"])
+            m = m / base if base > 0 else math.nan
+            what = f"{c} / {g['ratio_to']}"
+        met = ok and math.isfinite(m) and (g["at_most"] is None or m <= g["at_most"]) and \
+            (g["at_least"] is None or m >= g["at_least"])
+        bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else f">= {g['at_least']:g}"
+        text = f"{c}: " + g["text"] if g["text"] else \
+            f"{what}: mean `{g['metric']}` {bound} over {g['scenario']!r}"
+        detail = f"{what} = {m:.4g} over {len(scs)} scenarios pooled"
+        if not met and math.isfinite(m) and g["at_most"] is not None:
+            detail += f", missed by {m / g['at_most']:.2f}x"
+        out.append((text, met, detail))
+    return out
+
+
 def summary_table(exp, records):
     """A compact plain-text table for the terminal: RMS 3-D after settling per scenario."""
     groups = grouped(exp, records)
@@ -233,13 +264,13 @@ def summary_table(exp, records):
     return "\n".join(lines)
 
 
-def write_report(folder, exp, records, meta, logs):
+def write_report(folder, exp, records, meta, logs, workers=1):
     folder = Path(folder)
     groups = grouped(exp, records)
     figs = {}
     if logs:
         try:
-            figs = make_figures(folder, exp, groups, logs)
+            figs = make_figures(folder, exp, groups, logs, workers)
         except ImportError:
             figs = {}
     L = [f"# {exp.name}", ""]
@@ -291,7 +322,7 @@ def _slug(name):
     return "".join(ch if ch.isalnum() else "_" for ch in name).strip("_").lower()
 
 
-def make_figures(folder, exp, groups, logs):
+def make_figures(folder, exp, groups, logs, workers=1):
     """Thesis-style figures of the first seed, per scenario some controller could fly: the 3-D
     path against the reference, the error over time, the observers' disturbance estimate
     against the truth, and U1..U4; plus an overview bar chart."""
@@ -299,8 +330,6 @@ def make_figures(folder, exp, groups, logs):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
 
     out = {}
     fig_dir = Path(folder) / "figures"
@@ -329,57 +358,79 @@ def make_figures(folder, exp, groups, logs):
     # every scenario that at least one controller could fly (an all-infeasible one is a table)
     chosen = [sc for sc in exp.scenarios
               if any(feasible(groups.get((sc.name, c.name), [])) for c in exp.controllers)]
+    jobs = []
     for sc in chosen:
-        runs = [(c, logs.get((exp.scenarios.index(sc), j))) for j, c in enumerate(exp.controllers)]
-        runs = [(c, L) for c, L in runs if L is not None and len(L)]
-        if not runs:
-            continue
-        fig = plt.figure(figsize=(12, 8))
-        ax3 = fig.add_subplot(2, 2, 1, projection="3d")
-        ref = runs[0][1]
-        ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1,
-                 label="reference")
-        for c, L in runs:
-            ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1, label=c.name)
-        ax3.set_xlabel("east (m)")
-        ax3.set_ylabel("north (m)")
-        ax3.set_zlabel("altitude (m)")
-        ax3.legend(fontsize=7)
-        ax = fig.add_subplot(2, 2, 2)
-        for c, L in runs:
-            e = np.linalg.norm(L[:, L_POS:L_POS + 3] - L[:, L_REF:L_REF + 3], axis=1)
-            ax.plot(L[:, L_T], e, lw=1, label=c.name)
-        ax.axvline(sc.settle_s, color="grey", ls=":", lw=1)
-        ax.set_yscale("log")
-        ax.set_xlabel("mission time (s)")
-        ax.set_ylabel("|position error| (m)")
-        ax.set_title("error (dotted: end of the settling window)", fontsize=9)
-        ax = fig.add_subplot(2, 2, 3)
-        shown = False
-        for c, L in runs:
-            if c.kind in ("adrc", "ladrc"):
-                ax.plot(L[:, L_T], L[:, L_Z3], lw=1, label=f"{c.name} z3 (x)")
-                shown = True
-        ax.plot(runs[0][1][:, L_T], runs[0][1][:, L_DIST], "k--", lw=1, label="true (x)")
-        ax.set_xlabel("mission time (s)")
-        ax.set_ylabel("disturbance accel. x (m/s^2)")
-        ax.set_title("observer estimate vs truth" if shown else "true disturbance", fontsize=9)
-        ax.legend(fontsize=7)
-        ax = fig.add_subplot(2, 2, 4)
-        for c, L in runs[:3]:
-            for k, (name, ls) in enumerate((("U1 T (N)", "-"), ("U2 tau_x", "--"),
-                                            ("U3 tau_y", "-."), ("U4 tau_z", ":"))):
-                y = L[:, L_WRENCH + k]
-                scale = 1.0 if k == 0 else 100.0
-                ax.plot(L[:, L_T], y * scale, ls, lw=0.8,
-                        label=f"{c.name} {name}{'' if k == 0 else ' x100 (N m)'}")
-        ax.set_xlabel("mission time (s)")
-        ax.set_title("virtual inputs U1..U4", fontsize=9)
-        ax.legend(fontsize=6, ncol=2)
-        fig.suptitle(sc.name)
-        fig.tight_layout()
-        name = f"figures/{_slug(sc.name)}.png"
-        fig.savefig(Path(folder) / name, dpi=90)
-        plt.close(fig)
-        out[sc.name] = name
+        i = exp.scenarios.index(sc)
+        runs = [(c.name, c.kind, logs.get((i, j))) for j, c in enumerate(exp.controllers)]
+        runs = [(n, k, L) for n, k, L in runs if L is not None and len(L)]
+        if runs:
+            name = f"figures/{_slug(sc.name)}.png"
+            jobs.append((str(Path(folder) / name), sc.name, sc.settle_s, runs))
+            out[sc.name] = name
+    if workers > 1 and len(jobs) > 1:
+        import concurrent.futures as cf
+        import multiprocessing as mp
+
+        with cf.ProcessPoolExecutor(max_workers=workers,
+                                    mp_context=mp.get_context("forkserver")) as pool:
+            list(pool.map(_scenario_figure, jobs))
+    else:
+        for job in jobs:
+            _scenario_figure(job)
     return out
+
+
+def _scenario_figure(job):
+    """One scenario's four-panel figure (a picklable job: path, title, settle_s, runs)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
+
+    path, title, settle_s, runs = job
+    fig = plt.figure(figsize=(12, 8))
+    ax3 = fig.add_subplot(2, 2, 1, projection="3d")
+    ref = runs[0][2]
+    ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1, label="reference")
+    for name, _, L in runs:
+        ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1, label=name)
+    ax3.set_xlabel("east (m)")
+    ax3.set_ylabel("north (m)")
+    ax3.set_zlabel("altitude (m)")
+    ax3.legend(fontsize=7)
+    ax = fig.add_subplot(2, 2, 2)
+    for name, _, L in runs:
+        e = np.linalg.norm(L[:, L_POS:L_POS + 3] - L[:, L_REF:L_REF + 3], axis=1)
+        ax.plot(L[:, L_T], e, lw=1, label=name)
+    ax.axvline(settle_s, color="grey", ls=":", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("mission time (s)")
+    ax.set_ylabel("|position error| (m)")
+    ax.set_title("error (dotted: end of the settling window)", fontsize=9)
+    ax = fig.add_subplot(2, 2, 3)
+    shown = False
+    for name, kind, L in runs:
+        if kind in ("adrc", "ladrc"):
+            ax.plot(L[:, L_T], L[:, L_Z3], lw=1, label=f"{name} z3 (x)")
+            shown = True
+    ax.plot(ref[:, L_T], ref[:, L_DIST], "k--", lw=1, label="true (x)")
+    ax.set_xlabel("mission time (s)")
+    ax.set_ylabel("disturbance accel. x (m/s^2)")
+    ax.set_title("observer estimate vs truth" if shown else "true disturbance", fontsize=9)
+    ax.legend(fontsize=7)
+    ax = fig.add_subplot(2, 2, 4)
+    for name, _, L in runs[:3]:
+        for k, (label, ls) in enumerate((("U1 T (N)", "-"), ("U2 tau_x", "--"),
+                                         ("U3 tau_y", "-."), ("U4 tau_z", ":"))):
+            scale = 1.0 if k == 0 else 100.0
+            ax.plot(L[:, L_T], L[:, L_WRENCH + k] * scale, ls, lw=0.8,
+                    label=f"{name} {label}{'' if k == 0 else ' x100 (N m)'}")
+    ax.set_xlabel("mission time (s)")
+    ax.set_title("virtual inputs U1..U4", fontsize=9)
+    ax.legend(fontsize=6, ncol=2)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -138,6 +138,7 @@ def test_compare_writes_results_report_and_figures(tmp_path, capsys):
     assert "**infeasible**" in report  # the thesis wind
     assert "made up for the test" in report  # the thesis's numbers sit beside ours
     assert "- met: " in report and "- **missed**: " in report  # one goal of each
+    assert "LADRC / PD = " in report and "scenarios pooled" in report  # over: all
     assert (tmp_path / "figures" / "overview.png").stat().st_size > 10_000
     assert (tmp_path / "figures" / "gusty_hover.png").stat().st_size > 10_000
     header = (tmp_path / "results.csv").read_text().splitlines()[0].split(",")
