@@ -37,7 +37,9 @@ def fly_quiet(mission, tmp_path, **kw):
 # --- error bounds per controller and mission ----------------------------------------------------
 
 BOUNDS = {  # max 3-D error after the settling window (m)
-    "thesis_spiral_wind": {"ladrc": 0.12, "adrc": 0.12, "pd": 0.5},
+    # ladrc flies the mission's tuned gains and measured input model (0.036 m); adrc and pd
+    # their defaults
+    "thesis_spiral_wind": {"ladrc": 0.05, "adrc": 0.12, "pd": 0.5},
     "thesis_circle": {"ladrc": 0.12, "adrc": 0.12, "pd": 0.15},
     "x500_gusts": {"ladrc": 0.15, "adrc": 0.15, "pd": 0.4},
 }
