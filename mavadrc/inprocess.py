@@ -31,8 +31,8 @@ import numpy as np
 from sim import physics as phys
 from sim.firmware import attitude as A
 from sim.params import load_vehicle
-from sim.vehicle import SimVehicle, advance_wind
-from sim.wind import Wind, pack_wind
+from sim.vehicle import SimVehicle, advance_wind_into
+from sim.wind import WIND_SCRATCH, Wind, pack_wind
 
 from .control import geometry as G
 from .control import kernels as K
@@ -97,6 +97,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     out = np.zeros(G.NO + 3)
     e = np.empty(4)
     eul = np.empty(3)
+    scratch = np.empty(WIND_SCRATCH)
+    ws = np.empty((5, phys.NX))
+    xdot = np.empty(phys.NX)
     tick = tick0
     for j in range(refs.shape[0]):
         for i in range(3):
@@ -105,7 +108,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             rpos[i] = refs[j, i]
             rvel[i] = refs[j, 3 + i]
             racc[i] = refs[j, 6 + i]
-        phys.disturbance_accel(x, omega, pv, v_wind, f_ext, tau_ext, dist)
+        phys.disturbance_accel_into(x, omega, pv, v_wind, f_ext, tau_ext, dist, xdot)
         if oracle:
             for i in range(3):
                 racc[i] -= dist[i]
@@ -154,9 +157,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             sp[A.SP_RATE_VALID + i] = 0.0
             sp[A.SP_RATES + i] = 0.0
         sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
-        advance_wind(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
-                     eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt, per,
-                     tick, att_div, pos_div, pos_dt)
+        advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                          eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
+                          per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
     return refs.shape[0], 0
 
@@ -169,6 +172,8 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
     (idle, then the spool-up ramp), then ``per`` physics steps."""
     e = np.empty(4)
     eul = np.empty(3)
+    scratch = np.empty(WIND_SCRATCH)
+    ws = np.empty((5, phys.NX))
     tick = tick0
     for j in range(thrusts.shape[0]):
         for i in range(4):
@@ -187,9 +192,9 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
             sp[A.SP_RATE_VALID + i] = 0.0
             sp[A.SP_RATES + i] = 0.0
         sp[A.SP_THRUST] = min(max(thrusts[j], 0.0), 1.0)
-        advance_wind(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
-                     eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt, per,
-                     tick, att_div, pos_div, pos_dt)
+        advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                          eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
+                          per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
 
 

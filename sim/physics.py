@@ -239,7 +239,12 @@ def step(x, omega_cmd, P, v_wind, f_ext, tau_ext, dt):
 def disturbance_accel(x, omega_cmd, P, v_wind, f_ext, tau_ext, out):
     """Acceleration (NED, m/s^2) the environment adds beyond rotor thrust and gravity: drag on
     the air-relative velocity, rotor drag and direct forces, over the mass, at state x."""
-    xdot = np.empty(NX)
+    disturbance_accel_into(x, omega_cmd, P, v_wind, f_ext, tau_ext, out, np.empty(NX))
+
+
+@njit(cache=True, error_model="numpy")
+def disturbance_accel_into(x, omega_cmd, P, v_wind, f_ext, tau_ext, out, xdot):
+    """:func:`disturbance_accel` with the (NX,) derivative scratch passed in."""
     derivatives(x, omega_cmd, P, v_wind, f_ext, tau_ext, xdot)
     thrust = 0.0
     for i in range(4):

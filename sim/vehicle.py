@@ -81,8 +81,16 @@ def advance_wind(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta,
                  tau_ext, dt, n, tick, att_div, pos_div, pos_dt):
     """:func:`advance` with a packed wind (:func:`sim.wind.pack_wind`) evaluated every step at
     the step's start; ``eta`` holds the Dryden normals of these n steps, row by row."""
-    scratch = np.empty(WIND_SCRATCH)
-    ws = np.empty((5, phys.NX))
+    advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind,
+                      f_ext, tau_ext, dt, n, tick, att_div, pos_div, pos_dt,
+                      np.empty(WIND_SCRATCH), np.empty((5, phys.NX)))
+
+
+@jit
+def advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind,
+                      f_ext, tau_ext, dt, n, tick, att_div, pos_div, pos_dt, scratch, ws):
+    """:func:`advance_wind` with its work arrays passed in (``scratch``: WIND_SCRATCH floats,
+    ``ws``: (5, NX)), for compiled loops that call it every control period."""
     for k in range(n):
         t = tick + k
         wind_step_packed(wp, dstate, eta, k, t * dt, dt, x, v_wind, f_ext, tau_ext, scratch)
