@@ -49,6 +49,35 @@ def wind_vector(speed: float, direction_from_deg: float, vertical: float = 0.0) 
     return np.array([-speed * math.cos(a), -speed * math.sin(a), -vertical])
 
 
+@njit(cache=True, error_model="numpy")
+def _profile_scale(profile, ref_height, roughness, altitude):
+    """Height-profile factor of a constant wind; ``profile`` is the index in
+    ConstantWind.PROFILES (0 none, 1 sqrt60, 2 log)."""
+    if profile == 1.0:
+        return math.sqrt(min(max(altitude, 0.0), 60.0) / 60.0)
+    if profile == 2.0:
+        if altitude <= roughness:
+            return 0.0
+        return math.log(altitude / roughness) / math.log(ref_height / roughness)
+    return 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def _gust_factor(s, t_rise, t_hold):
+    """1-cosine gust shape in [0, 1] at ``s`` seconds after its start."""
+    if s <= 0.0:
+        return 0.0
+    if s < t_rise:
+        return 0.5 * (1.0 - math.cos(math.pi * s / t_rise))
+    s -= t_rise
+    if s <= t_hold:
+        return 1.0
+    s -= t_hold
+    if s < t_rise:
+        return 0.5 * (1.0 + math.cos(math.pi * s / t_rise))
+    return 0.0
+
+
 def _altitude(position) -> float:
     return max(-float(position[2]), 0.0)
 
@@ -106,13 +135,8 @@ class ConstantWind(Wind):
 
     def scale(self, altitude: float) -> float:
         """Profile factor for the horizontal wind at ``altitude`` (m above ground)."""
-        if self.profile == "sqrt60":
-            return math.sqrt(min(max(altitude, 0.0), 60.0) / 60.0)
-        if self.profile == "log":
-            if altitude <= self.roughness:
-                return 0.0
-            return math.log(altitude / self.roughness) / math.log(self.ref_height / self.roughness)
-        return 1.0
+        return _profile_scale(float(self.PROFILES.index(self.profile)), self.ref_height,
+                              self.roughness, float(altitude))
 
     def mean(self, position) -> np.ndarray:
         k = self.scale(_altitude(position))
@@ -133,10 +157,34 @@ def dryden_scales(altitude_m: float, w20: float) -> tuple[float, float, float, f
     the low-altitude model: L_w = h, L_u = h/(0.177 + 0.000823 h)^1.2, sigma_w = 0.1 W20,
     sigma_u = sigma_w/(0.177 + 0.000823 h)^0.4 (h in ft).
     """
+    return _dryden_scales(float(altitude_m), float(w20))
+
+
+@njit(cache=True, error_model="numpy")
+def _dryden_scales(altitude_m, w20):
     h = min(max(altitude_m / FOOT, 10.0), 1000.0)
     k = 0.177 + 0.000823 * h
     sigma_w = 0.1 * w20
     return sigma_w / k ** 0.4, sigma_w, h / k ** 1.2 * FOOT, h * FOOT
+
+
+@njit(cache=True, error_model="numpy")
+def _dryden_setup(mx, my, mz, vx, vy, vz, altitude, w20, v_min, dt):
+    """One step's filter arguments of :func:`_dryden_run` for mean wind (mx, my, mz), vehicle
+    velocity (vx, vy, vz) and altitude: (eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy)."""
+    sig_u, sig_w, l_u, l_w = _dryden_scales(altitude, w20)
+    rx = mx - vx
+    ry = my - vy
+    rz = mz - vz
+    travel = max(math.sqrt(rx * rx + ry * ry + rz * rz), v_min) * dt
+    horizontal = math.hypot(mx, my)
+    if horizontal > 1e-9:
+        ux = mx / horizontal
+        uy = my / horizontal
+    else:
+        ux = 1.0
+        uy = 0.0
+    return travel / l_u, travel / l_u, travel / l_w, sig_u, sig_u, sig_w, ux, uy
 
 
 @njit(cache=True, error_model="numpy")
@@ -280,18 +328,9 @@ class DrydenTurbulence(Wind):
             mx, my, mz = self.mean_wind.mean(position).tolist()
         else:
             mx = my = mz = 0.0
-        sig_u, sig_w, l_u, l_w = dryden_scales(_altitude(position), self._w20)
         vx, vy, vz = velocity.tolist() if isinstance(velocity, np.ndarray) else velocity
-        rx = mx - vx
-        ry = my - vy
-        rz = mz - vz
-        travel = max(math.sqrt(rx * rx + ry * ry + rz * rz), self.v_min) * dt
-        horizontal = math.hypot(mx, my)
-        if horizontal > 1e-9:
-            ux, uy = mx / horizontal, my / horizontal
-        else:
-            ux, uy = 1.0, 0.0
-        return travel / l_u, travel / l_u, travel / l_w, sig_u, sig_u, sig_w, ux, uy
+        return _dryden_setup(mx, my, mz, float(vx), float(vy), float(vz), _altitude(position),
+                             self._w20, self.v_min, float(dt))
 
     def sample(self, n: int, dt: float, position, velocity) -> np.ndarray:
         """Advance n steps of dt at a held position and velocity; (n, 3) NED turbulence."""
@@ -330,18 +369,7 @@ class OneMinusCosineGust(Wind):
 
     def factor(self, t: float) -> float:
         """Gust shape in [0, 1] at time t."""
-        s = t - self.t_start
-        if s <= 0.0:
-            return 0.0
-        if s < self.t_rise:
-            return 0.5 * (1.0 - math.cos(math.pi * s / self.t_rise))
-        s -= self.t_rise
-        if s <= self.t_hold:
-            return 1.0
-        s -= self.t_hold
-        if s < self.t_rise:
-            return 0.5 * (1.0 + math.cos(math.pi * s / self.t_rise))
-        return 0.0
+        return _gust_factor(float(t) - self.t_start, self.t_rise, self.t_hold)
 
     def velocity(self, t, dt, position, velocity):
         return self.amplitude * self.factor(t)
@@ -675,39 +703,12 @@ def pack_wind(wind):
 
 
 @njit(cache=True, error_model="numpy")
-def _profile_scale(wp, altitude):
-    prof = wp[WP_PROFILE]
-    if prof == 1.0:
-        return math.sqrt(min(max(altitude, 0.0), 60.0) / 60.0)
-    if prof == 2.0:
-        if altitude <= wp[WP_ROUGH]:
-            return 0.0
-        return math.log(altitude / wp[WP_ROUGH]) / math.log(wp[WP_REF_H] / wp[WP_ROUGH])
-    return 1.0
-
-
-@njit(cache=True, error_model="numpy")
-def _gust_factor(s, t_rise, t_hold):
-    if s <= 0.0:
-        return 0.0
-    if s < t_rise:
-        return 0.5 * (1.0 - math.cos(math.pi * s / t_rise))
-    s -= t_rise
-    if s <= t_hold:
-        return 1.0
-    s -= t_hold
-    if s < t_rise:
-        return 0.5 * (1.0 + math.cos(math.pi * s / t_rise))
-    return 0.0
-
-
-@njit(cache=True, error_model="numpy")
 def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out, scratch):
     """The packed wind over [t, t + dt] for state x (position x[0:3], velocity x[3:6]):
     writes v_out, f_out, tau_out as :meth:`Wind.step` returns them; ``eta[k]`` is the Dryden
     part's row of normals for this step; ``scratch``: (WIND_SCRATCH,) work space."""
     alt = max(-x[2], 0.0)
-    sc = _profile_scale(wp, alt)
+    sc = _profile_scale(wp[WP_PROFILE], wp[WP_REF_H], wp[WP_ROUGH], alt)
     mx = wp[WP_MEAN] * sc
     my = wp[WP_MEAN + 1] * sc
     mz = wp[WP_MEAN_Z]
@@ -715,26 +716,11 @@ def wind_step_packed(wp, dstate, eta, k, t, dt, x, v_out, f_out, tau_out, scratc
     v_out[1] = my
     v_out[2] = mz
     if wp[WP_DRYDEN] != 0.0:
-        h = min(max(alt / FOOT, 10.0), 1000.0)
-        kk = 0.177 + 0.000823 * h
-        sigma_w = 0.1 * wp[WP_W20]
-        sig_u = sigma_w / kk ** 0.4
-        l_u = h / kk ** 1.2 * FOOT
-        l_w = h * FOOT
-        rx = mx - x[3]
-        ry = my - x[4]
-        rz = mz - x[5]
-        travel = max(math.sqrt(rx * rx + ry * ry + rz * rz), wp[WP_VMIN]) * dt
-        horizontal = math.hypot(mx, my)
-        if horizontal > 1e-9:
-            ux = mx / horizontal
-            uy = my / horizontal
-        else:
-            ux = 1.0
-            uy = 0.0
+        eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux, uy = _dryden_setup(
+            mx, my, mz, x[3], x[4], x[5], alt, wp[WP_W20], wp[WP_VMIN], dt)
         out = scratch[0:3].reshape((1, 3))
-        _dryden_run_into(dstate, eta[k:k + 1], travel / l_u, travel / l_u, travel / l_w, sig_u,
-                         sig_u, sigma_w, ux, uy, out, scratch[3:10], scratch[10:17])
+        _dryden_run_into(dstate, eta[k:k + 1], eps_u, eps_v, eps_w, sig_u, sig_v, sig_w, ux,
+                         uy, out, scratch[3:10], scratch[10:17])
         v_out[0] += out[0, 0]
         v_out[1] += out[0, 1]
         v_out[2] += out[0, 2]
