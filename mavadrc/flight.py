@@ -103,6 +103,15 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
                               **gains)
 
 
+SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
+
+
+def spool_thrust(t, start_at, hover):
+    """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
+    ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
+    return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
+
+
 def level_quat(yaw):
     return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
 
@@ -110,7 +119,6 @@ def level_quat(yaw):
 class Flight:
     """One flight of a mission over a :class:`~mavadrc.link.Link`."""
 
-    SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
     CUT_S = 0.5  # thrust ramp down after touchdown
 
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
@@ -292,18 +300,13 @@ class Flight:
             elif ph == "landing":
                 self._landing(s)
         elif ph == "spoolup":
-            if self.start_at is None:
-                k = min(1.0, (s.t - self._phase_t0) / self.SPOOL_S)
-                start = k >= 1.0
-            else:
-                if s.t > self.start_at - self.SPOOL_S + 1e-9 and self._phase_t0 > \
-                        self.start_at - self.SPOOL_S + 1e-9:
-                    raise FlightError(f"armed at {self._phase_t0:.3f} s, too late to start the "
-                                      f"mission at {self.start_at:.3f} s")
-                k = min(1.0, max(0.0, (s.t - (self.start_at - self.SPOOL_S)) / self.SPOOL_S))
-                start = s.t >= self.start_at - 1e-9
-            self._send(s.t, level_quat(self.yaw), 0.8 * self.hover * k)
-            if start:
+            # the ramp ends at start_at, or SPOOL_S after arming when no start time is set
+            start_at = self.start_at if self.start_at is not None else self._phase_t0 + SPOOL_S
+            if self._phase_t0 > start_at - SPOOL_S + 1e-9:
+                raise FlightError(f"armed at {self._phase_t0:.3f} s, too late to start the "
+                                  f"mission at {self.start_at:.3f} s")
+            self._send(s.t, level_quat(self.yaw), float(spool_thrust(s.t, start_at, self.hover)))
+            if s.t >= start_at - 1e-9:
                 self._start_mission(s)
         elif ph == "mission":
             self._mission_step(s)
@@ -433,9 +436,7 @@ class Flight:
             if not self.m.ends_landed:
                 # the mission ends in the air (an experiment run): the autopilot lands it
                 self.say("mission complete in the air: handing over to the autopilot's land mode")
-                self.link.command(M.MAV_CMD_NAV_LAND)
-                self._land_cmd_wall = time.monotonic()
-                self.phase = "landing"
+                self._land_mode()
                 return
             self._cut_from = thrust
             self._enter("touchdown", s)
@@ -494,6 +495,9 @@ class Flight:
                 self.link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_HOLD)
             else:
                 self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
+        self._land_mode()
+
+    def _land_mode(self):
         self.link.command(M.MAV_CMD_NAV_LAND)
         self._land_cmd_wall = time.monotonic()
         self.phase = "landing"
@@ -612,6 +616,7 @@ class Flight:
             "rate_hz": self.m.controller.rate_hz,
             "settle_s": self.m.settle_s,
             "mission_start_s": self.mission_start,
+            "hover_thrust": self.hover,
             "vehicle_messages": self.texts[-50:],
         }
         if self.latency:

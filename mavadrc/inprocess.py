@@ -4,8 +4,8 @@ This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink fl
 :mod:`mavadrc.flight` against ``python -m sim --lockstep``, with the wire taken out:
 
 * the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware);
-* the same timeline: on the ground until armed, the thrust spooled up over
-  :attr:`Flight.SPOOL_S <mavadrc.flight.Flight.SPOOL_S>`, the mission clock started at
+* the same timeline: on the ground until armed, the thrust spooled up
+  (:func:`mavadrc.flight.spool_thrust`), the mission clock started at
   :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side);
 * one control step per LOCAL_POSITION_NED sample, the reference read as the flight reads it, and
   every value that crosses the wire rounded to the float32 MAVLink carries (position, velocity,
@@ -14,7 +14,7 @@ This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink fl
   safety checks (geofence, altitude, speed: the run stops there, as the flight hands over to the
   autopilot's land mode).
 
-After the spool-up (a hundred Python-level steps) the whole mission runs in one compiled call:
+The ground phase and the mission each run in one compiled call:
 controller, wind (:func:`sim.wind.pack_wind`), firmware and physics.  ``mavadrc compare --via
 mavlink`` flies the same runs over MAVLink, and a test holds the two paths to 1 mm RMS.
 
@@ -38,7 +38,7 @@ from .control import geometry as G
 from .control import kernels as K
 from .control._jit import jit
 from .control.position import position_update
-from .flight import Flight, level_quat, make_controller
+from .flight import make_controller, spool_thrust
 
 MISSION_START = 1.0  # s of vehicle time at which every run's mission clock starts
 ARM_AT = 0.35  # s: the fast path arms here (the lockstep flight arms a little earlier or later;
@@ -76,6 +76,21 @@ def f32(x):
 @jit
 def _f32(v):
     return float(np.float32(v))
+
+
+@jit
+def _attitude_setpoint(sp, q0, q1, q2, q3, thrust):
+    """What the vehicle does with SET_ATTITUDE_TARGET (attitude + thrust, rates ignored)."""
+    nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    sp[A.SP_Q] = q0 / nq
+    sp[A.SP_Q + 1] = q1 / nq
+    sp[A.SP_Q + 2] = q2 / nq
+    sp[A.SP_Q + 3] = q3 / nq
+    sp[A.SP_ATT_VALID] = 1.0
+    for i in range(3):
+        sp[A.SP_RATE_VALID + i] = 0.0
+        sp[A.SP_RATES + i] = 0.0
+    sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
 
 
 @jit
@@ -132,12 +147,10 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         for i in range(3):
             row[L_REF_ACC + i] = refs[j, 6 + i]
         if not ok:
-            return j + 1, 2
-        n2 = 0.0
+            return j + 1, STATUS_NONFINITE
         for i in range(4):
             e[i] = _f32(out[G.O_Q + i])
             row[L_Q + i] = e[i]
-            n2 += e[i] * e[i]
         thrust = _f32(out[G.O_THRUST])
         row[L_THRUST] = thrust
         # the flight's safety checks, on the sample, after logging it
@@ -147,21 +160,13 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
         if not (limits[0] <= north <= limits[1] and limits[2] <= east <= limits[3]) or \
                 alt > limits[5] or alt < limits[4] or speed > limits[6]:
-            return j + 1, 1
-        # what the vehicle does with SET_ATTITUDE_TARGET (attitude + thrust, rates ignored)
-        nq = math.sqrt(n2)
-        for i in range(4):
-            sp[A.SP_Q + i] = e[i] / nq
-        sp[A.SP_ATT_VALID] = 1.0
-        for i in range(3):
-            sp[A.SP_RATE_VALID + i] = 0.0
-            sp[A.SP_RATES + i] = 0.0
-        sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
+            return j + 1, STATUS_BREACH
+        _attitude_setpoint(sp, e[0], e[1], e[2], e[3], thrust)
         advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
                           eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
                           per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
-    return refs.shape[0], 0
+    return refs.shape[0], STATUS_OK
 
 
 @jit
@@ -180,18 +185,8 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
             e[i] = x[phys.IX_Q + i]
         G.quat_to_euler(e, eul)
         yaw = _f32(eul[2])
-        q0 = _f32(math.cos(0.5 * yaw))
-        q3 = _f32(math.sin(0.5 * yaw))
-        nq = math.sqrt(q0 * q0 + q3 * q3)
-        sp[A.SP_Q] = q0 / nq
-        sp[A.SP_Q + 1] = 0.0
-        sp[A.SP_Q + 2] = 0.0
-        sp[A.SP_Q + 3] = q3 / nq
-        sp[A.SP_ATT_VALID] = 1.0
-        for i in range(3):
-            sp[A.SP_RATE_VALID + i] = 0.0
-            sp[A.SP_RATES + i] = 0.0
-        sp[A.SP_THRUST] = min(max(thrusts[j], 0.0), 1.0)
+        _attitude_setpoint(sp, _f32(math.cos(0.5 * yaw)), 0.0, 0.0, _f32(math.sin(0.5 * yaw)),
+                           thrusts[j])
         advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
                           eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
                           per, tick, att_div, pos_div, pos_dt, scratch, ws)
@@ -207,6 +202,7 @@ class InProcessRun:
     duration: float  # the trajectory's duration (s)
     status: int
     mission_start: float  # vehicle time of the mission's t = 0
+    hover_thrust: float  # the normalized hover thrust the controller was given
 
     @property
     def aborted(self):
@@ -249,37 +245,33 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     origin = f32(r.position)
     traj, phases = mission.build_trajectory(origin)
     v.arm()
-    # idle and spool-up setpoints up to the sample before MISSION_START: one compiled call
-    tick0 = int(v._tick)
-    n_pre = int(math.ceil((MISSION_START - ARM_AT) / h)) + 2
-    ts_pre = boot_seconds(tick0 + per * np.arange(n_pre), dt)
-    n_pre = int(np.argmax(ts_pre >= MISSION_START - 1e-9))
-    start = MISSION_START - Flight.SPOOL_S
-    k_pre = np.clip((ts_pre[:n_pre] - start) / Flight.SPOOL_S, 0.0, 1.0)
-    thrusts = f32(0.8 * hover * k_pre)
+    # idle and spool-up setpoints, one per control period, up to and including the sample at
+    # MISSION_START (the flight resets its controller there and sends the last spool setpoint)
     packed = v._packed if v._packed is not None else pack_wind(Wind())
     if v._packed is None and v.wind is not None:
         raise ValueError("this wind has no compiled form (sim.wind.pack_wind); the in-process "
                          "path needs one")
+    tick0 = int(v._tick)
+    ts_pre = boot_seconds(tick0 + per * np.arange(int(math.ceil((MISSION_START - ARM_AT) / h)) + 3),
+                          dt)
+    n_pre = int(np.argmax(ts_pre >= MISSION_START - 1e-9))
+    t0 = float(ts_pre[n_pre])
+    thrusts = f32(spool_thrust(ts_pre[:n_pre + 1], MISSION_START, hover))
     fw = v.fw
-    spool(v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
-          packed.params, packed.state, packed.normals(n_pre * per), v._v_wind, v._f_ext,
-          v._tau_ext, dt, tick0, fw.att_div, fw.pos_div, fw.pos_dt, per, thrusts)
-    v._tick += n_pre * per
+    eta = packed.normals((n_pre + 1) * per)
+
+    def ground(first, last):
+        spool(v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
+              packed.params, packed.state, eta[first * per:last * per], v._v_wind, v._f_ext,
+              v._tau_ext, dt, tick0 + first * per, fw.att_div, fw.pos_div, fw.pos_dt, per,
+              thrusts[first:last])
+
+    ground(0, n_pre)
+    ctrl.reset(f32(v._x[0:3]))
+    ground(n_pre, n_pre + 1)
+    v._tick += (n_pre + 1) * per
     v._target_time = v._tick * dt
     v._mode = "attitude"
-    t0 = None
-    while t0 is None:
-        tick = v._tick
-        ts = float(boot_seconds(tick, dt))
-        yaw = float(f32(v.reported().euler[2]))
-        start = MISSION_START - Flight.SPOOL_S
-        k = min(1.0, max(0.0, (ts - start) / Flight.SPOOL_S))
-        v.set_attitude_target(f32(level_quat(yaw)), float(f32(0.8 * hover * k)))
-        if ts >= MISSION_START - 1e-9:
-            t0 = ts
-            ctrl.reset(f32(v.reported().position))
-        v.step(h)
     # the mission steps: sample times as the wire carries them, the reference as the flight
     # reads it (the grid of control periods, or an exact sample off the grid)
     n_max = int(math.ceil((traj.duration + 2 * h) / h)) + 2
@@ -299,12 +291,11 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
         packed.params, packed.state, eta, v._v_wind, v._f_ext, v._tau_ext, dt, int(v._tick),
         fw.att_div, fw.pos_div, fw.pos_dt, per, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle,
-        limits,
-        origin, log)
+        limits, origin, log)
     steps = rows if status == STATUS_OK else rows - 1
     v._tick += steps * per
     v._target_time = v._tick * dt
-    return InProcessRun(log[:rows], phases, traj.duration, int(status), t0)
+    return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 
 
 @functools.lru_cache(maxsize=16)

@@ -6,13 +6,14 @@ controller bandwidths ``wc`` and, for the observer kinds, the observer-to-contro
 ``wo / wc`` (up to 6: beyond it the loop through the vehicle's attitude response has too little
 margin left); for the classical ADRC also fhan's acceleration bound ``r`` and fal's linear zone
 ``delta``.  The observers' input model is not searched: it is a property of the vehicle,
-measured (``input_lag: auto``), not a knob.  ``b0`` stays 1: the position channels command acceleration, and the vehicle file's
-hover thrust turns that into normalized thrust.
+measured (``input_lag: auto``), not a knob.  ``b0`` stays 1: the position channels command
+acceleration, and the vehicle file's hover thrust turns that into normalized thrust.
 
 The cost is the geometric mean, over the chosen scenarios and seeds (1000, 1001, ...: disjoint
 from the seeds an experiment reports), of the RMS 3-D position error after each scenario's
-settling window (a run that is infeasible or stops at a safety limit counts as 10 m).  scipy's differential evolution searches it, evaluating a generation's candidates in
-parallel worker processes (``updating='deferred'``), each candidate's runs on the fast path.
+settling window (a run that is infeasible or stops at a safety limit counts as 10 m).  scipy's
+differential evolution searches it, evaluating a generation's candidates in parallel worker
+processes (``updating='deferred'``), each candidate's runs on the fast path.
 """
 
 import copy
