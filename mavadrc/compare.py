@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from .experiment import experiment_from_text, load_experiment, run_task
+from .experiment import load_experiment, run_task
 
 RESULTS_VERSION = 1
 
@@ -67,6 +67,21 @@ def _worker_init():
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
+def default_workers(workers=None):
+    """Worker processes to use: ``workers``, or one per core."""
+    return workers if workers is not None else (os.cpu_count() or 1)
+
+
+def process_pool(workers):
+    """The worker pool of experiment runs, tuning candidates and report figures: fresh
+    interpreters (forkserver; spawn off Linux) that load the compiled kernels from numba's
+    cache, one numba thread each."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn" if sys.platform != "linux" else "forkserver")
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+
+
 def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess", out_dir=None,
                progress=True, keep_logs_seed=None, stream=sys.stderr):
     """Every run of the matrix; returns (records in matrix order, {(i, j): log} for the runs of
@@ -95,7 +110,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
     else:
         if via == "inprocess":
             _warm_up(exp)
-        n = workers if workers is not None else (os.cpu_count() or 1)
+        n = default_workers(workers)
         if via == "mavlink":
             n = 1  # each run already runs two processes (companion + vehicle)
         if n <= 1 or len(tasks) <= 1:
@@ -103,11 +118,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
                 results[k] = run_task(task)
                 bar.step()
         else:
-            import multiprocessing as mp
-
-            ctx = mp.get_context("spawn" if sys.platform != "linux" else "forkserver")
-            with cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx,
-                                        initializer=_worker_init) as pool:
+            with process_pool(n) as pool:
                 chunk = max(1, min(8, len(tasks) // (4 * n)))
                 for k, res in enumerate(pool.map(run_task, tasks, chunksize=chunk)):
                     results[k] = res
@@ -173,7 +184,8 @@ def _write_csv(path, records):
 
 def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="inprocess",
             figures=True, progress=True, stream=sys.stderr):
-    """Run the experiment at ``path`` and write its folder; returns (folder, records)."""
+    """Run the experiment at ``path`` and write its folder; returns (folder, experiment,
+    records)."""
     exp = load_experiment(path)
     seed_list = exp.seeds if seeds is None else list(range(int(seeds)))
     folder = Path(out) if out else Path("runs") / f"compare-{Path(exp.source).stem}"
@@ -192,17 +204,17 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
     from .report import write_report
 
     write_report(folder, exp, records, meta, logs if figures else {},
-                 workers=workers if workers is not None else (os.cpu_count() or 1))
+                 workers=default_workers(workers))
     stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s); "
                  f"report in {folder / 'report.md'}\n")
-    return folder, records
+    return folder, exp, records
 
 
 def main(args):
     from sim.yamlio import ConfigError
 
     try:
-        folder, records = compare(args.experiment, out=args.out, seeds=args.seeds,
+        folder, exp, records = compare(args.experiment, out=args.out, seeds=args.seeds,
                                   workers=args.workers, scheduler=args.scheduler, via=args.via,
                                   figures=not args.no_figures, progress=not args.quiet)
     except (ConfigError, OSError) as exc:
@@ -210,10 +222,5 @@ def main(args):
         return 2
     from .report import summary_table
 
-    print(summary_table(experiment_from_text(*_source_text(args.experiment)), records))
+    print(summary_table(exp, records))
     return 0
-
-
-def _source_text(path):
-    exp = load_experiment(path)
-    return exp.source, exp.text

@@ -40,7 +40,6 @@ the scenario was feasible for it.
 
 import copy
 import functools
-import hashlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -112,18 +111,25 @@ class Experiment:
         return m
 
 
-def _merged(defaults, item):
-    """``item`` over ``defaults`` (top-level keys), keeping each key's line."""
+def _merged(defaults, item, skip=()):
+    """``item`` over ``defaults`` (top-level keys, those in ``skip`` left out), keeping each
+    key's line."""
     out = YamlMap(line=getattr(item, "line", None))
     for src in (defaults, item):
         if src is None:
             continue
+        lines = getattr(src, "lines", None) or {}
         for k, v in src.items():
+            if k in skip:
+                continue
             out[k] = v
-            lines = getattr(src, "lines", None)
-            if lines and k in lines:
+            if k in lines:
                 out.lines[k] = lines[k]
     return out
+
+
+#: scenario keys that belong to the experiment, not to the scenario's mission
+SCENARIO_KEYS = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller")
 
 
 def load_experiment(path):
@@ -133,16 +139,8 @@ def load_experiment(path):
 
 
 @functools.lru_cache(maxsize=8)
-def _cached(source, text):
-    return _parse(source, text)
-
-
 def experiment_from_text(source, text):
     """An :class:`Experiment` from YAML text (``source`` names it in errors); cached."""
-    return _cached(source, text)
-
-
-def _parse(source, text):
     data = load_yaml(source, text=text)
     top = Section(data, source)
     name = top.string("name", Path(source).stem)
@@ -167,12 +165,12 @@ def _parse(source, text):
     if not controllers:
         top.error("controllers", "must list at least one controller")
     scenarios = []
-    for k, raw in enumerate(top.raw("scenarios")):
+    lines = getattr(top.data.get("scenarios"), "lines", None)
+    for n, raw in enumerate(top.raw("scenarios")):
         if not isinstance(raw, dict):
-            top.error("scenarios", f"item {k} must be a mapping")
-        merged = _merged(defaults, raw)
-        lines = getattr(top.data["scenarios"], "lines", None)
-        sec = Section(merged, source, f"scenarios[{k}]", line=lines[k] if lines else None)
+            top.error("scenarios", f"item {n} must be a mapping")
+        where = f"scenarios[{n}]"
+        sec = Section(_merged(defaults, raw), source, where, line=lines[n] if lines else None)
         sname = sec.string("name")
         if any(s.name == sname for s in scenarios):
             sec.error("name", f"two scenarios are called {sname!r}")
@@ -201,18 +199,12 @@ def _parse(source, text):
                 thesis[str(ctrl_name)] = fig
             ts.finish()
         match = sec.string("attitude_controller", None, choices=("match",)) == "match"
-        # the rest is a mission (without a controller, which the matrix supplies)
-        skip = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller")
-        mission_keys = {k: v for k, v in merged.items() if k not in skip}
-        mm = YamlMap(mission_keys, line=merged.line)
-        mm.lines = {k: v for k, v in merged.lines.items() if k in mission_keys}
-        msec = Section(mm, source, f"scenarios[{k}]", line=merged.line)
+        # the rest is a mission (without a controller, which the matrix supplies); its own
+        # section refuses unknown keys
+        msec = Section(_merged(defaults, raw, SCENARIO_KEYS), source, where, line=sec.line())
         mission = mission_from_section(msec, source, text, sname, require_land=False,
                                        controller=False)
-        mission.name = sname
         mission.settle_s = settle
-        sec._used.update(mission_keys)
-        sec.finish()
         scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note))
     if not scenarios:
         top.error("scenarios", "must list at least one scenario")
@@ -244,17 +236,21 @@ def _parse(source, text):
 # --- one run -------------------------------------------------------------------------------------
 
 def metric(record, path):
-    """A record's value at a dotted path ('after_settle.max_error_m'); NaN if absent."""
+    """A record's value at a dotted path ('after_settle.max_error_m', with list indices:
+    'after_settle.rms_error_xyz_m.0'); NaN if absent."""
     v = record
     for part in path.split("."):
-        if not isinstance(v, dict) or part not in v:
+        if isinstance(v, dict) and part in v:
+            v = v[part]
+        elif isinstance(v, (list, tuple)) and part.isdigit() and int(part) < len(v):
+            v = v[int(part)]
+        else:
             return math.nan
-        v = v[part]
     return float(v) if v is not None else math.nan
 
 
 def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, thrust_min,
-              thrust_max, aborted=None, yaw=None, ref_yaw=None, dt=None, ref_acc=None,
+              thrust_max, dt, aborted=None, yaw=None, ref_yaw=None, ref_acc=None,
               true_dist=None, hover_thrust=None):
     """The record's figures from a run's per-step arrays (either path).
 
@@ -266,7 +262,6 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
     out["after_settle"] = error_figures(t, ref, pos, settle_s)
     join = t < settle_s
     out["joining"] = error_figures(t[join], np.asarray(ref)[join], np.asarray(pos)[join])
-    h = dt if dt is not None else (float(np.median(np.diff(t))) if t.size > 1 else 0.0)
     track = t >= settle_s
     acc = np.asarray(acc_applied, dtype=float)
     limited = np.any(np.abs(np.asarray(acc_cmd, dtype=float) - acc) > 1e-6, axis=1)
@@ -275,8 +270,8 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
     n_track = int(track.sum())
     out["effort_rms_accel"] = float(np.sqrt(np.mean(np.sum(acc[track] ** 2, axis=1)))) \
         if n_track else math.nan
-    out["thrust_saturated_s"] = float(at_limit.sum() * h)
-    out["limited_s"] = float(limited.sum() * h)
+    out["thrust_saturated_s"] = float(at_limit.sum() * dt)
+    out["limited_s"] = float(limited.sum() * dt)
     share = float(at_limit[track].mean()) if n_track else 1.0
     need_share = 0.0
     if ref_acc is not None and true_dist is not None and hover_thrust is not None and n_track:
@@ -328,24 +323,20 @@ def _yaw_step(t, yaw, ref_yaw):
 def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     """Scenario i x controller j x seed on the fast path; returns (record, log or None).
     ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
-    from .inprocess import L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T, \
-        L_THRUST, L_YAW, fly_inprocess
+    from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T,
+                            L_THRUST, L_YAW, fly_inprocess)
 
     m = exp.mission(i, j, spec)
     t0 = time.perf_counter()
     r = fly_inprocess(m, kind=exp.controllers[j].kind, seed=seed)
     wall = time.perf_counter() - t0
     L = r.log
-    rec = _record(exp, i, j, seed, "inprocess")
-    rec.update(summarise(L[:, L_T], L[:, L_REF:L_REF + 3], L[:, L_POS:L_POS + 3],
-                         L[:, L_ACC_CMD:L_ACC_CMD + 3], L[:, L_ACC:L_ACC + 3], L[:, L_THRUST],
-                         settle_s=exp.scenarios[i].settle_s, duration=r.duration,
-                         thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
-                         aborted=r.aborted, dt=1.0 / m.controller.rate_hz,
-                         ref_acc=L[:, L_REF_ACC:L_REF_ACC + 3],
-                         true_dist=L[:, L_DIST:L_DIST + 3], hover_thrust=_hover(m),
-                         **_yaw_args(exp, i, L[:, L_YAW], L[:, L_REF_YAW])))
-    rec["wall_s"] = wall
+    cols = {"t": L[:, L_T], "ref": L[:, L_REF:L_REF + 3], "pos": L[:, L_POS:L_POS + 3],
+            "acc_cmd": L[:, L_ACC_CMD:L_ACC_CMD + 3], "acc": L[:, L_ACC:L_ACC + 3],
+            "thrust": L[:, L_THRUST], "ref_acc": L[:, L_REF_ACC:L_REF_ACC + 3],
+            "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW]}
+    rec = _run_record(exp, i, j, seed, "inprocess", m, cols, r.duration, r.aborted,
+                      r.hover_thrust, wall)
     return rec, (L if keep_log else None)
 
 
@@ -361,70 +352,44 @@ def run_mavlink(exp, i, j, seed, out_dir):
     kind = exp.controllers[j].kind
     if kind == "oracle":
         raise ValueError("the oracle needs the simulator's internals: it runs in process only")
-    if m.wind is not None and isinstance(m.wind, dict):
-        # the bundled vehicle reads wind from a file
-        import yaml
-        folder = Path(out_dir)
-        folder.mkdir(parents=True, exist_ok=True)
-        digest = hashlib.sha1(repr(sorted(m.wind.items())).encode()).hexdigest()[:10]
-        wind_file = folder / f"wind-{digest}.yaml"
-        wind_file.write_text(yaml.safe_dump(_plain(m.wind)))
-        m = copy.copy(m)
-        m.wind = str(wind_file)
     t0 = time.perf_counter()
     summary, folder = fly(m, kind=kind, out=str(out_dir), lockstep=True, seed=seed,
                           figures=False, progress=False, stream=io.StringIO(),
                           start_at=MISSION_START, timeout=600.0)
     wall = time.perf_counter() - t0
     tab = read_table(Path(folder) / "controller.csv")
-    ax = "xyz"
-    rec = _record(exp, i, j, seed, "mavlink")
-    col = lambda p: np.column_stack([tab[f"{p}{a}"] for a in ax])  # noqa: E731
+
+    def xyz(prefix):
+        return np.column_stack([tab[f"{prefix}{a}"] for a in "xyz"])
+
+    cols = {"t": tab["t"], "ref": xyz("ref_"), "pos": xyz("pos_"), "acc_cmd": xyz("acc_cmd_"),
+            "acc": xyz("acc_applied_"), "thrust": tab["thrust"], "ref_acc": xyz("ref_a"),
+            "dist": xyz("true_dist_"), "yaw": tab["yaw"], "ref_yaw": tab["ref_yaw"]}
     traj, _ = m.build_trajectory()
-    rec.update(summarise(tab["t"], col("ref_"), col("pos_"), col("acc_cmd_"),
-                         col("acc_applied_"), tab["thrust"], settle_s=exp.scenarios[i].settle_s,
-                         duration=traj.duration, thrust_min=m.controller.thrust_min,
-                         thrust_max=m.controller.thrust_max, aborted=summary.get("aborted"),
-                         dt=1.0 / m.controller.rate_hz, ref_acc=col("ref_a"),
-                         true_dist=col("true_dist_"), hover_thrust=_hover(m),
-                         **_yaw_args(exp, i, tab["yaw"], tab["ref_yaw"])))
-    rec["wall_s"] = wall
+    rec = _run_record(exp, i, j, seed, "mavlink", m, cols, traj.duration, summary.get("aborted"),
+                      summary["hover_thrust"], wall)
     rec["record_folder"] = str(folder)
     return rec, None
 
 
-def _hover(m):
-    """Normalized hover thrust of the mission's vehicle (what 1 g takes)."""
-    if m.hover_thrust is not None:
-        return m.hover_thrust
-    from sim.params import load_vehicle
-
-    return load_vehicle(m.vehicle or "crazyflie").hover_thrust_norm
-
-
-def _yaw_args(exp, i, yaw, ref_yaw):
-    """Yaw step figures only where the scenario is about the attitude loop."""
-    if exp.scenarios[i].attitude_match:
-        return {"yaw": yaw, "ref_yaw": ref_yaw}
-    return {}
-
-
-def _plain(x):
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_plain(v) for v in x]
-    return x
-
-
-def _record(exp, i, j, seed, via):
+def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, wall):
+    """The record of one run from its per-step columns (either path)."""
     sc = exp.scenarios[i]
     c = exp.controllers[j]
     rec = {"scenario": sc.name, "group": sc.group, "controller": c.name, "kind": c.kind,
            "seed": int(seed), "via": via, "settle_s": sc.settle_s,
-           "attitude_controller": exp.mission(i, j).attitude_controller}
+           "attitude_controller": m.attitude_controller}
     if sc.series:
         rec["series"] = dict(sc.series)
+    # yaw step figures only where the scenario is about the attitude loop
+    yaw = {"yaw": cols["yaw"], "ref_yaw": cols["ref_yaw"]} if sc.attitude_match else {}
+    rec.update(summarise(cols["t"], cols["ref"], cols["pos"], cols["acc_cmd"], cols["acc"],
+                         cols["thrust"], settle_s=sc.settle_s, duration=duration,
+                         thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
+                         dt=1.0 / m.controller.rate_hz, aborted=aborted,
+                         ref_acc=cols["ref_acc"], true_dist=cols["dist"],
+                         hover_thrust=hover_thrust, **yaw))
+    rec["wall_s"] = wall
     return rec
 
 

@@ -22,21 +22,6 @@ TABLE_METRICS = (
 )
 
 
-def value(rec, path):
-    """``metric`` with list indices ('after_settle.rms_error_xyz_m.0')."""
-    parts = path.split(".")
-    if parts[-1].isdigit():
-        v = rec
-        for p in parts[:-1]:
-            v = v.get(p, {}) if isinstance(v, dict) else {}
-        try:
-            x = v[int(parts[-1])]
-        except (TypeError, IndexError, KeyError):
-            return math.nan
-        return float(x) if x is not None else math.nan
-    return metric(rec, path)
-
-
 def grouped(exp, records):
     """OrderedDict (scenario, controller) -> records over seeds, in the experiment's order."""
     out = OrderedDict()
@@ -50,7 +35,7 @@ def grouped(exp, records):
 
 def stat(recs, path):
     """(mean, std) of a metric over runs (NaN-free runs only); (nan, nan) if none."""
-    xs = np.array([value(r, path) for r in recs], dtype=float)
+    xs = np.array([metric(r, path) for r in recs], dtype=float)
     xs = xs[np.isfinite(xs)]
     if xs.size == 0:
         return math.nan, math.nan
@@ -70,12 +55,12 @@ def feasible(recs):
     return all(r.get("feasible", False) for r in recs)
 
 
-def _status(recs, via_mavlink=False):
+def _status(recs, oracle=False):
     if not recs:
-        return "not run (the oracle runs in process only)" if via_mavlink else "not run"
-    bad = [r for r in recs if not r.get("feasible", False)]
-    if not bad:
+        return "not run (the oracle runs in process only)" if oracle else "not run"
+    if feasible(recs):
         return "ok"
+    bad = [r for r in recs if not r.get("feasible", False)]
     reason = bad[0].get("infeasible_reason", "infeasible")
     return f"**infeasible** ({len(bad)}/{len(recs)}: {reason})"
 
@@ -179,70 +164,54 @@ def findings(exp, groups):
 
 
 def check_goals(exp, groups):
-    """[(text, met, detail)] for each goal of the experiment."""
+    """[(text, met, detail)] for each goal and controller of the experiment.
+
+    ``over: each`` judges every matching scenario and reports the worst; ``over: all`` pools
+    the runs of all matching scenarios into one mean (a ratio: over the reference controller's
+    runs of the same scenarios)."""
     out = []
     for g in exp.goals:
         scs = [sc for sc in exp.scenarios if fnmatch.fnmatchcase(sc.name, g["scenario"])]
-        if g.get("over") == "all" and scs:
-            out.extend(_pooled_goal(g, scs, groups))
-            continue
+        parts = [scs] if g.get("over") == "all" else [[sc] for sc in scs]
+        bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else f">= {g['at_least']:g}"
         for c in g["controllers"]:
-            worst = None
-            for sc in scs:
-                recs = groups.get((sc.name, c), [])
-                m, _ = stat(recs, g["metric"])
-                if g["ratio_to"]:
-                    base, _ = stat(groups.get((sc.name, g["ratio_to"]), []), g["metric"])
-                    m = m / base if base > 0 else math.nan
-                ok = math.isfinite(m) and feasible(recs) and \
-                    (g["at_most"] is None or m <= g["at_most"]) and \
-                    (g["at_least"] is None or m >= g["at_least"])
-                if worst is None or (not ok and worst[1]) or (
-                        ok == worst[1] and math.isfinite(m) and g["at_most"] is not None
-                        and (not math.isfinite(worst[2]) or m > worst[2])):
-                    worst = (sc.name, ok, m)
-            if worst is None:
+            what = f"{c} / {g['ratio_to']}" if g["ratio_to"] else c
+            judged = [_judge(g, part, c, groups) for part in parts if part]
+            if not judged:
                 out.append((f"{c}: `{g['metric']}` on {g['scenario']!r}", False,
                             "no such scenario"))
                 continue
-            what = f"{c} / {g['ratio_to']}" if g["ratio_to"] else c
-            bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else \
-                f">= {g['at_least']:g}"
-            text = f"{c}: " + g["text"] if g["text"] else \
-                f"{what}: `{g['metric']}` {bound} on {g['scenario']!r}"
-            detail = f"worst: {worst[2]:.4g} ({worst[0]})"
-            if not worst[1] and math.isfinite(worst[2]) and g["at_most"] is not None:
-                detail += f", missed by {worst[2] / g['at_most']:.2f}x"
-            out.append((text, worst[1], detail))
+            # the worst: a failing part first, then the one farthest from the bound
+            sign = -1.0 if g["at_most"] is not None else 1.0
+            m, ok, part = min(judged, key=lambda x: (x[1], sign * x[0] if math.isfinite(x[0])
+                                                    else -math.inf))
+            if g["text"]:
+                text = f"{c}: {g['text']}"
+            else:
+                scope = "mean " if len(parts) == 1 and len(scs) > 1 else ""
+                text = f"{what}: {scope}`{g['metric']}` {bound} on {g['scenario']!r}"
+            detail = f"{what} = {m:.4g} over {len(part)} scenarios pooled" if len(parts) == 1 \
+                and len(scs) > 1 else f"worst: {m:.4g} ({part[0].name})"
+            if not ok and math.isfinite(m) and g["at_most"] is not None:
+                detail += f", missed by {m / g['at_most']:.2f}x"
+            out.append((text, ok, detail))
     return out
 
 
-def _pooled_goal(g, scs, groups):
-    """A goal over the scenarios pooled: the mean of the metric over all their runs (and, for a
-    ratio, over the reference controller's runs of the same scenarios)."""
-    out = []
+def _judge(g, scs, c, groups):
+    """(value, met, scenarios) of goal g for controller c over the runs of scenarios scs."""
+    def runs(name):
+        return [r for sc in scs for r in groups.get((sc.name, name), [])]
 
-    def pooled(name):
-        recs = [r for sc in scs for r in groups.get((sc.name, name), [])]
-        return stat(recs, g["metric"])[0], all(r.get("feasible", False) for r in recs)
-
-    for c in g["controllers"]:
-        m, ok = pooled(c)
-        what = c
-        if g["ratio_to"]:
-            base, _ = pooled(g["ratio_to"])
-            m = m / base if base > 0 else math.nan
-            what = f"{c} / {g['ratio_to']}"
-        met = ok and math.isfinite(m) and (g["at_most"] is None or m <= g["at_most"]) and \
-            (g["at_least"] is None or m >= g["at_least"])
-        bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else f">= {g['at_least']:g}"
-        text = f"{c}: " + g["text"] if g["text"] else \
-            f"{what}: mean `{g['metric']}` {bound} over {g['scenario']!r}"
-        detail = f"{what} = {m:.4g} over {len(scs)} scenarios pooled"
-        if not met and math.isfinite(m) and g["at_most"] is not None:
-            detail += f", missed by {m / g['at_most']:.2f}x"
-        out.append((text, met, detail))
-    return out
+    recs = runs(c)
+    m, _ = stat(recs, g["metric"])
+    if g["ratio_to"]:
+        base, _ = stat(runs(g["ratio_to"]), g["metric"])
+        m = m / base if base > 0 else math.nan
+    ok = math.isfinite(m) and feasible(recs) and \
+        (g["at_most"] is None or m <= g["at_most"]) and \
+        (g["at_least"] is None or m >= g["at_least"])
+    return m, ok, scs
 
 
 def summary_table(exp, records):
@@ -368,11 +337,9 @@ def make_figures(folder, exp, groups, logs, workers=1):
             jobs.append((str(Path(folder) / name), sc.name, sc.settle_s, runs))
             out[sc.name] = name
     if workers > 1 and len(jobs) > 1:
-        import concurrent.futures as cf
-        import multiprocessing as mp
+        from .compare import process_pool
 
-        with cf.ProcessPoolExecutor(max_workers=workers,
-                                    mp_context=mp.get_context("forkserver")) as pool:
+        with process_pool(workers) as pool:
             list(pool.map(_scenario_figure, jobs))
     else:
         for job in jobs:

@@ -19,11 +19,11 @@ processes (``updating='deferred'``), each candidate's runs on the fast path.
 import copy
 import fnmatch
 import math
-import os
 import sys
 
 import numpy as np
 
+from .compare import default_workers, process_pool
 from .experiment import experiment_from_text, load_experiment, run_inprocess
 
 INFEASIBLE_COST = 10.0
@@ -61,15 +61,6 @@ def spec_with(spec, kind, x):
     return s
 
 
-def cost(args):
-    """Mean RMS error after settling of one candidate (picklable: runs in a worker)."""
-    source, text, j, scenarios, seeds, x = args
-    exp = experiment_from_text(source, text)
-    kind = exp.controllers[j].kind
-    spec = spec_with(exp.controllers[j].spec, kind, x)
-    return _cost(exp, j, scenarios, seeds, spec)
-
-
 def _cost(exp, j, scenarios, seeds, spec=None):
     """Geometric mean over scenarios and seeds of the RMS error after settling: every scenario
     weighs the same in relative terms, so one hard scenario (metres of error) does not drown
@@ -87,13 +78,16 @@ def _cost(exp, j, scenarios, seeds, spec=None):
 
 
 class _Objective:
-    """Maps parameter vectors to costs through a pool (differential_evolution's ``workers``)."""
+    """A candidate's cost (picklable: differential evolution maps it over worker processes)."""
 
     def __init__(self, source, text, j, scenarios, seeds):
-        self.base = (source, text, j, tuple(scenarios), tuple(seeds))
+        self.args = (source, text, j, tuple(scenarios), tuple(seeds))
 
     def __call__(self, x):
-        return cost((*self.base, tuple(float(v) for v in x)))
+        source, text, j, scenarios, seeds = self.args
+        exp = experiment_from_text(source, text)
+        spec = spec_with(exp.controllers[j].spec, exp.controllers[j].kind, x)
+        return _cost(exp, j, scenarios, seeds, spec)
 
 
 def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, workers=None,
@@ -119,28 +113,22 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     space = SPACES[kind]
     bounds = [(lo, hi) for _, lo, hi in space]
     obj = _Objective(exp.source, exp.text, j, idx, seed_list)
-    start = _start_cost(exp, j, idx, seed_list)
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    start = _cost(exp, j, idx, seed_list)
+    n = default_workers(workers)
     stream.write(f"tuning {controller} ({kind}) on {len(idx)} scenarios x {len(seed_list)} "
                  f"seeds; starting gains cost {start:.4f} m\n")
     evals = [0]
 
-    def report(xk, convergence=None):
+    def report(intermediate_result):  # the generation's best, as scipy keeps it
         evals[0] += 1
-        stream.write(f"  generation {evals[0]}: best {obj(xk):.4f} m at "
-                     + ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, xk)) + "\n")
+        r = intermediate_result
+        stream.write(f"  generation {evals[0]}: best {r.fun:.4f} m at "
+                     + ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, r.x)) + "\n")
         stream.flush()
 
-    pool = None
+    pool = process_pool(n) if n > 1 else None
+    mapper = pool.map if pool is not None else map
     try:
-        if n > 1:
-            import concurrent.futures as cf
-            import multiprocessing as mp
-
-            pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
-            mapper = pool.map
-        else:
-            mapper = map
         res = differential_evolution(obj, bounds, maxiter=maxiter, popsize=popsize, seed=seed,
                                      tol=1e-3, polish=False, updating="deferred",
                                      workers=mapper, callback=report, init="sobol")
@@ -152,10 +140,6 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
             "start_cost_m": start, "x": {nm: float(v) for (nm, _, _), v in zip(space, res.x)},
             "evaluations": int(res.nfev), "scenarios": [exp.scenarios[i].name for i in idx],
             "seeds": seed_list, "spec": best}
-
-
-def _start_cost(exp, j, idx, seeds):
-    return _cost(exp, j, idx, seeds)
 
 
 def controller_yaml(result):
