@@ -8,12 +8,22 @@ import time
 import yaml
 
 
-def free_udp_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+def _free_port(kind):
+    s = socket.socket(socket.AF_INET, kind)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
     return port
+
+
+def free_udp_port():
+    """A loopback UDP port nobody is bound to right now."""
+    return _free_port(socket.SOCK_DGRAM)
+
+
+def free_tcp_port():
+    """A loopback TCP port nobody is bound to right now."""
+    return _free_port(socket.SOCK_STREAM)
 
 
 class EmbeddedVehicle:

@@ -513,32 +513,32 @@ def response_time_constants(vehicle="crazyflie", attitude_controller="px4", hove
     if key in _LAGS:
         return _LAGS[key]
     out = []
-    for axis, a_cmd in ((0, (1.0, 0.0, 0.0)), (2, (0.0, 0.0, -1.0))):
+    h = 0.001
+    for axis, step in ((0, (1.0, 0.0, 0.0)), (2, (0.0, 0.0, -1.0))):
         v = SimVehicle(vp, position=(0.0, 0.0, -10.0), attitude_controller=attitude_controller,
                        hover_thrust=hover_thrust)
         v.arm()
-        hover = v.hover_thrust
-        m = G.mapping_params(hover_thrust=hover, tilt_max=math.radians(45.0))
+        m = G.mapping_params(hover_thrust=v.hover_thrust, tilt_max=math.radians(45.0))
         res = np.empty(G.NO)
-        h = 0.001
-        for a in ((0.0, 0.0, 0.0), a_cmd):
+
+        def command(a):
             G.accel_to_attitude(a[0], a[1], a[2], 0.0, m, res)
             v.set_attitude_target(res[G.O_Q:G.O_Q + 4], res[G.O_THRUST])
-            if a == (0.0, 0.0, 0.0):
-                v.step(0.3)
-                v0 = float(v.state[3 + axis])
-                sign = -1.0 if axis == 2 else 1.0
-                continue
-            prev = v0
-            for k in range(1, 1001):
-                v.step(h)
-                vel = float(v.state[3 + axis])
-                if sign * (vel - prev) / h >= 0.632:
-                    out.append(k * h)
-                    break
-                prev = vel
-            else:
-                raise RuntimeError(f"{vp.name}: no response to an acceleration step on axis "
-                                   f"{axis} within 1 s")
+
+        command((0.0, 0.0, 0.0))
+        v.step(0.3)  # settle at hover
+        command(step)
+        sign = step[axis]
+        prev = float(v.state[3 + axis])
+        for k in range(1, 1001):
+            v.step(h)
+            vel = float(v.state[3 + axis])
+            if sign * (vel - prev) / h >= 0.632:
+                out.append(k * h)
+                break
+            prev = vel
+        else:
+            raise RuntimeError(f"{vp.name}: no response to an acceleration step on axis "
+                               f"{axis} within 1 s")
     _LAGS[key] = (out[0], out[1])
     return _LAGS[key]

@@ -2,7 +2,6 @@
 
 import math
 import os
-import socket
 import time
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: speak MAVLink 2
@@ -10,17 +9,9 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: spe
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from mavadrc.embedded import free_udp_port  # noqa: F401  (re-exported for the tests)
+from mavadrc.embedded import free_tcp_port, free_udp_port  # noqa: F401  (re-exported for tests)
 from sim.server import SitlServer
 from sim.vehicle import SimVehicle
-
-
-def free_tcp_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_key=None,
