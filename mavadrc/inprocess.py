@@ -32,7 +32,7 @@ from sim import physics as phys
 from sim.firmware import attitude as A
 from sim.params import load_vehicle
 from sim.vehicle import SimVehicle, advance_wind_into
-from sim.wind import WIND_SCRATCH, Wind, pack_wind
+from sim.wind import WIND_SCRATCH
 
 from .control import geometry as G
 from .control import kernels as K
@@ -247,36 +247,30 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     v.arm()
     # idle and spool-up setpoints, one per control period, up to and including the sample at
     # MISSION_START (the flight resets its controller there and sends the last spool setpoint)
-    packed = v._packed if v._packed is not None else pack_wind(Wind())
-    if v._packed is None and v.wind is not None:
-        raise ValueError("this wind has no compiled form (sim.wind.pack_wind); the in-process "
-                         "path needs one")
-    tick0 = int(v._tick)
-    ts_pre = boot_seconds(tick0 + per * np.arange(int(math.ceil((MISSION_START - ARM_AT) / h)) + 3),
-                          dt)
+    state = v.kernel_state()
+    packed, wind_out = v.kernel_wind()
+    fw = v.fw
+    timing = (fw.att_div, fw.pos_div, fw.pos_dt, per)
+    tick0 = v.tick
+    n_max = int(math.ceil((MISSION_START - ARM_AT) / h)) + 3
+    ts_pre = boot_seconds(tick0 + per * np.arange(n_max), dt)
     n_pre = int(np.argmax(ts_pre >= MISSION_START - 1e-9))
     t0 = float(ts_pre[n_pre])
     thrusts = f32(spool_thrust(ts_pre[:n_pre + 1], MISSION_START, hover))
-    fw = v.fw
     eta = packed.normals((n_pre + 1) * per)
 
     def ground(first, last):
-        spool(v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
-              packed.params, packed.state, eta[first * per:last * per], v._v_wind, v._f_ext,
-              v._tau_ext, dt, tick0 + first * per, fw.att_div, fw.pos_div, fw.pos_dt, per,
-              thrusts[first:last])
+        spool(*state, packed.params, packed.state, eta[first * per:last * per], *wind_out, dt,
+              tick0 + first * per, *timing, thrusts[first:last])
 
     ground(0, n_pre)
-    ctrl.reset(f32(v._x[0:3]))
+    ctrl.reset(f32(v.state[0:3]))
     ground(n_pre, n_pre + 1)
-    v._tick += (n_pre + 1) * per
-    v._target_time = v._tick * dt
-    v._mode = "attitude"
+    v.ran((n_pre + 1) * per)
     # the mission steps: sample times as the wire carries them, the reference as the flight
     # reads it (the grid of control periods, or an exact sample off the grid)
     n_max = int(math.ceil((traj.duration + 2 * h) / h)) + 2
-    ticks = v._tick + per * np.arange(n_max)
-    times = boot_seconds(ticks, dt) - t0
+    times = boot_seconds(v.tick + per * np.arange(n_max), dt) - t0
     done = np.nonzero(times >= traj.duration)[0]
     n = int(done[0]) + 1 if done.size else n_max
     times = times[:n]
@@ -287,14 +281,10 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
                        sf.max_speed], dtype=float)
     Pc, Mc = ctrl.params
-    rows, status = closed_loop(
-        v._x, v._fs, fw.fp, v._S, fw.P, v._W, fw.mx, v._sp, v._omega, v._wk, v._pv,
-        packed.params, packed.state, eta, v._v_wind, v._f_ext, v._tau_ext, dt, int(v._tick),
-        fw.att_div, fw.pos_div, fw.pos_dt, per, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle,
-        limits, origin, log)
-    steps = rows if status == STATUS_OK else rows - 1
-    v._tick += steps * per
-    v._target_time = v._tick * dt
+    rows, status = closed_loop(*state, packed.params, packed.state, eta, *wind_out, dt, v.tick,
+                               *timing, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle, limits,
+                               origin, log)
+    v.ran((rows if status == STATUS_OK else rows - 1) * per)
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 
 

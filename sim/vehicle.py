@@ -311,6 +311,37 @@ class SimVehicle:
         """(3, 3) Euler-channel observer estimates z1, z2, z3 per axis (ladrc/adrc kinds)."""
         return self._S[:, 0:3].copy()
 
+    # -- the compiled kernels' view, for callers that run whole loops of them ---------------------
+    def kernel_state(self):
+        """The arrays :func:`advance_wind` steps, in its argument order (x .. pv): state, firmware
+        state and parameters, setpoint, rotor commands, scratch, vehicle parameters."""
+        fw = self.fw
+        return (self._x, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp, self._omega,
+                self._wk, self._pv)
+
+    def kernel_wind(self):
+        """(packed wind, (v_wind, f_ext, tau_ext) output arrays) for :func:`advance_wind`; the
+        packed form of calm air when there is no wind.  ValueError if the wind model has no
+        compiled form (:func:`sim.wind.pack_wind`)."""
+        packed = self._packed
+        if packed is None:
+            if self.wind is not None:
+                raise ValueError("this wind has no compiled form (sim.wind.pack_wind)")
+            packed = pack_wind(Wind())
+        return packed, (self._v_wind, self._f_ext, self._tau_ext)
+
+    @property
+    def tick(self):
+        """Physics steps since boot."""
+        return self._tick
+
+    def ran(self, ticks):
+        """Account for ``ticks`` physics steps a caller ran on :meth:`kernel_state` itself with
+        attitude setpoints (the vehicle is in attitude mode afterwards)."""
+        self._tick += int(ticks)
+        self._target_time = self._tick * self.physics_dt
+        self._mode = "attitude"
+
     def reported(self):
         """The state as the vehicle reports it: truth, or with a sensor model the firmware's
         noisy estimate as of the last physics step, delayed by the model's latency."""
