@@ -219,7 +219,9 @@ def fly_figures(realtime_seconds=10.0, lockstep_seconds=60.0):
 def compare_figures(seeds=10, mavlink=True):
     """`mavadrc compare` on configs/experiments/thesis.yaml: wall time and runs per second of
     the whole matrix for one seed and for ``seeds`` seeds (local worker processes, one per
-    core), and one run in process against the same run over MAVLink in lockstep."""
+    core; the runs actually flown, and the same seeds with every run flown,
+    ``--rerun-identical``), and one run in process against the same run over MAVLink in
+    lockstep."""
     import tempfile
 
     from .compare import run_matrix
@@ -230,8 +232,18 @@ def compare_figures(seeds=10, mavlink=True):
     run_matrix(exp, seeds=[0], progress=False, keep_logs_seed=None)  # compile / load caches
     for n in (1, seeds):
         records, _, wall = run_matrix(exp, seeds=list(range(n)), progress=False)
+        flown = sum(1 for r in records if "same_as_seed" not in r)
         fig[f"compare_thesis_{n}seed_wall_s"] = wall
         fig[f"compare_thesis_{n}seed_runs_per_s"] = len(records) / wall
+        fig[f"compare_thesis_{n}seed_runs_flown"] = flown
+        fig[f"compare_thesis_{n}seed_runs_flown_per_s"] = flown / wall
+    if seeds > 1:
+        # the peer: every seed flown, including those of scenarios the seed does not change
+        records, _, wall = run_matrix(exp, seeds=list(range(seeds)), progress=False,
+                                      rerun_identical=True)
+        fig[f"compare_thesis_{seeds}seed_rerun_identical_wall_s"] = wall
+        fig[f"ratio_compare_{seeds}seed_rerun_identical_over_default"] = \
+            wall / fig[f"compare_thesis_{seeds}seed_wall_s"]
     i = [sc.name for sc in exp.scenarios].index("spiral in wind, physical wind")
     j = [c.kind for c in exp.controllers].index("ladrc")
     t0 = time.perf_counter()

@@ -89,6 +89,10 @@ def build_parser():
     c.add_argument("--via", choices=("inprocess", "mavlink"), default="inprocess",
                    help="inprocess (default): the fast path on the vehicle's kernels; mavlink: "
                         "each run flown over MAVLink against the bundled vehicle in lockstep")
+    c.add_argument("--rerun-identical", action="store_true",
+                   help="fly every seed even of scenarios the seed does not change (no "
+                        "turbulence, no sensor noise); by default those fly once per controller "
+                        "and their record stands for every seed")
     c.add_argument("--no-figures", action="store_true", help="tables only")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_compare)

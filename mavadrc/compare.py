@@ -83,19 +83,41 @@ def process_pool(workers):
 
 
 def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess", out_dir=None,
-               progress=True, keep_logs_seed=None, stream=sys.stderr):
+               progress=True, keep_logs_seed=None, stream=sys.stderr, rerun_identical=False):
     """Every run of the matrix; returns (records in matrix order, {(i, j): log} for the runs of
-    ``keep_logs_seed``, wall seconds)."""
-    seeds = exp.seeds if seeds is None else seeds
+    ``keep_logs_seed``, wall seconds).
+
+    A scenario whose seed changes nothing (no turbulence, no sensor noise:
+    :attr:`Scenario.random` is False) is flown once per controller, with ``keep_logs_seed`` (or
+    the first seed), and its record stands for every seed: the runs are deterministic, so
+    flying them again would give the same record.  Those records carry
+    ``seed_independent: true``, and the copies ``same_as_seed`` and ``wall_s`` 0.
+    ``rerun_identical`` flies every seed anyway.
+    """
+    seeds = list(exp.seeds if seeds is None else seeds)
     runs = exp.runs(seeds)
     if via == "mavlink":
         skipped = [r for r in runs if exp.controllers[r[1]].kind == "oracle"]
         runs = [r for r in runs if exp.controllers[r[1]].kind != "oracle"]
         if skipped:
             stream.write(f"{len(skipped)} oracle runs skipped: the oracle runs in process only\n")
+    else:
+        noisy = [sc.name for sc in exp.scenarios if sc.mission.noise]
+        if noisy:
+            raise ValueError(f"scenario(s) {', '.join(noisy)} fly with sensor noise, which only "
+                             f"the bundled vehicle's server models: use --via mavlink")
+    same = {}  # run -> the run whose record it shares
+    if not rerun_identical and len(seeds) > 1:
+        first = keep_logs_seed if keep_logs_seed in seeds else seeds[0]
+        fixed = {i for i, sc in enumerate(exp.scenarios) if not sc.random}
+        same = {(i, j, s): (i, j, first) for i, j, s in runs if i in fixed and s != first}
+    flown = [r for r in runs if r not in same]
     tasks = [(exp.source, exp.text, i, j, s, via, s == keep_logs_seed,
-              str(Path(out_dir or ".") / "flights")) for i, j, s in runs]
-    bar = Progress(len(tasks), out=stream, enabled=progress)
+              str(Path(out_dir or ".") / "flights")) for i, j, s in flown]
+    bar = Progress(len(runs), out=stream, enabled=progress)
+    repeats = {}
+    for r, rep in same.items():
+        repeats[rep] = repeats.get(rep, 0) + 1
     t0 = time.perf_counter()
     results = [None] * len(tasks)
     if scheduler:
@@ -105,8 +127,9 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
             futures = client.map(run_task, tasks, pure=False)
             index = {f.key: k for k, f in enumerate(futures)}
             for fut in as_completed(futures):
-                results[index[fut.key]] = fut.result()
-                bar.step()
+                k = index[fut.key]
+                results[k] = fut.result()
+                bar.step(1 + repeats.get(flown[k], 0))
     else:
         if via == "inprocess":
             _warm_up(exp)
@@ -116,16 +139,25 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
         if n <= 1 or len(tasks) <= 1:
             for k, task in enumerate(tasks):
                 results[k] = run_task(task)
-                bar.step()
+                bar.step(1 + repeats.get(flown[k], 0))
         else:
             with process_pool(n) as pool:
                 chunk = max(1, min(8, len(tasks) // (4 * n)))
                 for k, res in enumerate(pool.map(run_task, tasks, chunksize=chunk)):
                     results[k] = res
-                    bar.step()
+                    bar.step(1 + repeats.get(flown[k], 0))
     wall = time.perf_counter() - t0
-    records = [r[0] for r in results]
-    logs = {(i, j): res[1] for (i, j, s), res in zip(runs, results) if res[1] is not None}
+    by_run = {r: res[0] for r, res in zip(flown, results)}
+    for r in repeats:
+        by_run[r]["seed_independent"] = True
+    records = []
+    for r in runs:
+        if r in same:
+            rec = dict(by_run[same[r]], seed=int(r[2]), same_as_seed=int(same[r][2]), wall_s=0.0)
+        else:
+            rec = by_run[r]
+        records.append(rec)
+    logs = {(i, j): res[1] for (i, j, s), res in zip(flown, results) if res[1] is not None}
     return records, logs, wall
 
 
@@ -183,7 +215,7 @@ def _write_csv(path, records):
 
 
 def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="inprocess",
-            figures=True, progress=True, stream=sys.stderr):
+            figures=True, progress=True, stream=sys.stderr, rerun_identical=False):
     """Run the experiment at ``path`` and write its folder; returns (folder, experiment,
     records)."""
     exp = load_experiment(path)
@@ -197,15 +229,20 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
     records, logs, wall = run_matrix(exp, seeds=seed_list, workers=workers, scheduler=scheduler,
                                      via=via, out_dir=folder, progress=progress,
                                      keep_logs_seed=seed_list[0] if figures else None,
-                                     stream=stream)
+                                     stream=stream, rerun_identical=rerun_identical)
+    flown = sum(1 for r in records if "same_as_seed" not in r)
     meta = {"seeds": seed_list, "via": via, "scheduler": scheduler, "runs": len(records),
-            "wall_s": wall, "runs_per_s": len(records) / wall if wall > 0 else None}
+            "rerun_identical": bool(rerun_identical),
+            "runs_flown": flown, "wall_s": wall,
+            "runs_per_s": len(records) / wall if wall > 0 else None,
+            "runs_flown_per_s": flown / wall if wall > 0 else None}
     write_results(folder, exp, records, meta)
     from .report import write_report
 
     write_report(folder, exp, records, meta, logs if figures else {},
                  workers=default_workers(workers))
-    stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s); "
+    stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s; "
+                 f"{flown} flown, {flown / wall:.1f}/s, the rest seed-independent); "
                  f"report in {folder / 'report.md'}\n")
     return folder, exp, records
 
@@ -216,8 +253,9 @@ def main(args):
     try:
         folder, exp, records = compare(args.experiment, out=args.out, seeds=args.seeds,
                                   workers=args.workers, scheduler=args.scheduler, via=args.via,
-                                  figures=not args.no_figures, progress=not args.quiet)
-    except (ConfigError, OSError) as exc:
+                                  figures=not args.no_figures, progress=not args.quiet,
+                                  rerun_identical=args.rerun_identical)
+    except (ConfigError, OSError, ValueError) as exc:
         print(f"mavadrc compare: {exc}", file=sys.stderr)
         return 2
     from .report import summary_table

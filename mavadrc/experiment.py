@@ -81,6 +81,20 @@ class Scenario:
     attitude_match: bool = False
     note: str = ""
 
+    @functools.cached_property
+    def random(self):
+        """True when the seed changes this scenario's runs: its wind draws random numbers
+        (Dryden turbulence) or it flies with sensor noise.  Otherwise every seed flies the
+        same run, and an experiment flies it once (:func:`mavadrc.compare.run_matrix`)."""
+        m = self.mission
+        if m.noise:
+            return True
+        if m.wind is None:
+            return False
+        from sim.wind import load_wind
+
+        return bool(load_wind(m.wind).random)
+
 
 @dataclass
 class Experiment:

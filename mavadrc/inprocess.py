@@ -222,6 +222,9 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     true disturbance fed forward); ``seed``/``wind`` override the mission's (as ``mavadrc fly``'s
     options do).  ``vehicle_options``: extra :class:`SimVehicle` keywords.
     """
+    if mission.noise:
+        raise ValueError("sensor noise is modelled by the bundled vehicle's server only: fly "
+                         "this mission over MAVLink")
     kind = kind or mission.controller.kind
     oracle = kind == "oracle"
     spec = mission.controller

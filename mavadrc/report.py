@@ -250,8 +250,14 @@ def write_report(folder, exp, records, meta, logs, workers=1):
           f"x {len(exp.controllers)} controllers x {ns} seed{'s' if ns != 1 else ''}), "
           f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
           f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
-          f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", "",
-          "Errors are position errors in metres: RMS and max over the tracking window (after "
+          f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", ""]
+    fixed = [sc.name for sc in exp.scenarios if not sc.random]
+    if ns > 1 and fixed and not meta.get("rerun_identical"):
+        L += [f"The seed changes nothing in {len(fixed)} of the {len(exp.scenarios)} scenarios "
+              "(no turbulence, no sensor noise): each of their runs was flown once, and its "
+              f"record stands for every seed ({meta.get('runs_flown', meta['runs'])} runs "
+              "flown; `--rerun-identical` flies them all).", ""]
+    L += ["Errors are position errors in metres: RMS and max over the tracking window (after "
           "each scenario's settling time, which covers the takeoff and the joining transient), "
           "mean ± std over seeds; `joining max` is the largest error before it. `effort` is the "
           "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "

@@ -90,6 +90,7 @@ class Wind:
     """
 
     has_forces = False
+    random = False  # True when the seed changes the series (the model draws random numbers)
 
     def reset(self, seed: int | None = 0) -> None:
         """Restart the model (time-dependent state and random stream) from ``seed``."""
@@ -292,6 +293,8 @@ class DrydenTurbulence(Wind):
     mean wind (e.g. a ConstantWind), or None.
     """
 
+    random = True
+
     def __init__(self, w20: float | None = None, intensity: str | None = None,
                  mean_wind: Wind | None = None, v_min: float = 1.5, seed: int | None = 0):
         if intensity is not None:
@@ -463,6 +466,10 @@ class CompositeWind(Wind):
     def has_forces(self) -> bool:
         return any(part.has_forces for part in self.parts)
 
+    @property
+    def random(self) -> bool:
+        return any(part.random for part in self.parts)
+
     def velocity(self, t, dt, position, velocity):
         v = np.zeros(3)
         for part in self.parts:
@@ -499,6 +506,10 @@ class LayeredWind(Wind):
         if base is None:
             return extra
         return cls(base, extra)
+
+    @property
+    def random(self) -> bool:
+        return self.base.random or self.extra.random
 
     def mean(self, position):
         return self.base.mean(position) + self.extra.mean(position)

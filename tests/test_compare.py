@@ -104,6 +104,46 @@ def test_seeds_give_different_wind_and_the_same_seed_the_same_run(tiny, tiny_ser
     assert again["after_settle"]["rms_error_m"] == a[1]["after_settle"]["rms_error_m"]
 
 
+def test_only_scenarios_with_turbulence_or_noise_depend_on_the_seed(tiny):
+    assert [sc.random for sc in tiny.scenarios] == [True, False]
+    exp = load_experiment(EXPERIMENTS / "thesis.yaml")
+    random = {sc.name for sc in exp.scenarios if sc.random}
+    assert random == {sc.name for sc in exp.scenarios if "physical wind" in sc.name}
+    noisy = experiment_from_text("noisy.yaml", TINY.read_text().replace(
+        "    wind: thesis", "    wind: thesis\n    sim: {noise: true}"))
+    assert noisy.scenarios[1].random
+
+
+def test_a_seed_independent_run_flies_once_and_its_record_is_what_every_seed_flies(
+        tiny, tiny_serial):
+    """The premise, checked by flying it: without turbulence two seeds give the same record;
+    run_matrix flies such a run once and copies its record to the other seeds."""
+    a, _ = run_inprocess(tiny, 1, 1, 0)
+    b, _ = run_inprocess(tiny, 1, 1, 7)
+    strip = ("seed", "wall_s")
+    assert {k: v for k, v in a.items() if k not in strip} == \
+        {k: v for k, v in b.items() if k not in strip}
+    copies = [r for r in tiny_serial if "same_as_seed" in r]
+    assert len(copies) == len(tiny.controllers)  # scenario 1 x every controller, seed 1
+    for r in copies:
+        assert r["scenario"] == "thesis wind hover" and r["seed"] == 1 and r["wall_s"] == 0.0
+        assert r["same_as_seed"] == 0 and r["seed_independent"]
+    for r in tiny_serial:
+        assert r.get("seed_independent", False) == (r["scenario"] == "thesis wind hover")
+    flown, _, _ = C.run_matrix(tiny, workers=1, progress=False, rerun_identical=True)
+    assert not any("same_as_seed" in r or "seed_independent" in r for r in flown)
+    assert _key(flown) == _key(tiny_serial)
+
+
+def test_sensor_noise_is_refused_on_the_fast_path(tiny):
+    noisy = experiment_from_text("noisy.yaml", TINY.read_text().replace(
+        "    wind: thesis", "    wind: thesis\n    sim: {noise: true}"))
+    with pytest.raises(ValueError, match="thesis wind hover.*--via mavlink"):
+        C.run_matrix(noisy, workers=1, progress=False)
+    with pytest.raises(ValueError, match="over MAVLink"):
+        run_inprocess(noisy, 1, 0, 0)
+
+
 # --- scale-out ----------------------------------------------------------------------------------
 
 def _key(records):

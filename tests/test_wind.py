@@ -312,3 +312,16 @@ def test_pack_wind_refuses_what_it_cannot_compile():
     two = CompositeWind([ConstantWind(1.0), ConstantWind(2.0, 90.0)])
     assert pack_wind(two) is None
     assert pack_wind(None) is None
+
+
+@pytest.mark.parametrize("name", ["calm", "breeze_1ms", "moderate_gusts", "thesis"])
+def test_random_says_whether_the_seed_changes_the_series(name):
+    """``random`` is what lets an experiment fly a seed-independent run once: it must be True
+    exactly when two seeds give different winds."""
+    a, b = load_wind(name, seed=1), load_wind(name, seed=2)
+    va = np.array([a.step(k * 0.01, 0.01, np.array([0, 0, -1.0]), np.zeros(3))[0]
+                   for k in range(200)])
+    vb = np.array([b.step(k * 0.01, 0.01, np.array([0, 0, -1.0]), np.zeros(3))[0]
+                   for k in range(200)])
+    assert a.random == (not np.array_equal(va, vb))
+    assert a.random == (name == "moderate_gusts")
