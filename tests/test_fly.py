@@ -67,14 +67,22 @@ def test_adrc_rejects_the_wind_better_than_pd(tmp_path):
     assert lad["after_settle"]["rms_error_m"] * 3 < pd["after_settle"]["rms_error_m"]
 
 
-def test_lockstep_flights_are_identical_for_the_same_seed(tmp_path):
-    """Turbulence included: the controller table of two flights matches byte for byte."""
+def test_lockstep_flights_are_identical_for_the_same_seed(tmp_path, monkeypatch):
+    """Turbulence included: the controller table of two flights matches byte for byte, whether
+    the vehicle was forked from this process or started as ``python -m sim``."""
+    import mavadrc.embedded as E
+
     path = tmp_path / "gusty.yaml"
     path.write_text((MISSIONS / "hover.yaml").read_text() + "wind: moderate_gusts\nsim: {seed: 5}\n")
     mission = load_mission(path)
+    assert E.can_fork() == (sys.platform == "linux")
     _, a = fly_quiet(mission, tmp_path / "a")
-    _, b = fly_quiet(mission, tmp_path / "b")
+    with monkeypatch.context() as mp:
+        mp.setattr(E, "can_fork", lambda: False)
+        _, b = fly_quiet(mission, tmp_path / "b")
     assert (a / "controller.csv").read_bytes() == (b / "controller.csv").read_bytes()
+    for folder in (a, b):
+        assert "lockstep" in (folder / "vehicle.log").read_text()
     _, c = fly_quiet(mission, tmp_path / "c", seed=6)
     assert (a / "controller.csv").read_bytes() != (c / "controller.csv").read_bytes()
 
@@ -242,10 +250,12 @@ def test_ctrl_c_holds_then_lands_and_disarms(tmp_path):
     out = tmp_path / "runs"
     proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "fly", str(path), "--out", str(out),
                              "--no-figures", "-q"], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         folder = wait_rows(lambda: out.glob("*/controller.csv"), 300)
-        proc.send_signal(signal.SIGINT)
+        # as a terminal does: Ctrl-C reaches the whole process group, the bundled vehicle too,
+        # which must keep flying so the companion can land it
+        os.killpg(proc.pid, signal.SIGINT)
         output, _ = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
