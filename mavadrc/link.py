@@ -9,6 +9,7 @@ Connection strings are accepted as pymavlink and MAVSDK users write them::
 Every frame in both directions goes to an optional tlog writer as it passes.
 """
 
+import collections
 import logging
 import math
 import os
@@ -83,6 +84,10 @@ class Link:
         self.acks = {}  # command -> last COMMAND_ACK
         self.params = {}  # name -> PARAM_VALUE
         self.sent = 0
+        self.bad_frames = 0
+        self.spin_s = 0.0  # UDP: poll this long (s) for data before sleeping (lockstep sets it)
+        self._queue = collections.deque()
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)
 
     def _sent(self, msg):
         self.sent += 1
@@ -95,15 +100,29 @@ class Link:
     # --- receiving ---------------------------------------------------------------------------
 
     def recv(self, timeout=0.05):
-        """Next message (or None), with the bookkeeping every message gets."""
-        msg = self.conn.recv_match(blocking=True, timeout=timeout)
+        """Next message (or None after ``timeout`` s), with the bookkeeping every message gets.
+
+        Over UDP a datagram is read and parsed whole (pymavlink's parser, CRC and signing
+        checks included) and its messages are handed out one by one; other links go through
+        mavutil message by message.  Frames that do not parse are dropped and counted
+        (``bad_frames``).  The tlog is flushed before waiting for data.
+        """
+        if self._queue:
+            msg = self._queue.popleft()
+        elif self._datagrams:
+            msg = self._recv_datagram(timeout)
+        else:
+            if self.tlog is not None:
+                self.tlog.flush()
+            msg = self.conn.recv_match(blocking=True, timeout=timeout)
+            if msg is not None and msg.get_type() != "BAD_DATA" and self.tlog is not None:
+                self.tlog.write(msg.get_msgbuf())
         if msg is None:
             return None
-        if msg.get_type() == "BAD_DATA":
-            return None
-        if self.tlog is not None:
-            self.tlog.write(msg.get_msgbuf())
         t = msg.get_type()
+        if t == "BAD_DATA":
+            self.bad_frames += 1
+            return None
         if t == "HEARTBEAT" and msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1 \
                 and msg.autopilot != M.MAV_AUTOPILOT_INVALID:
             self.heartbeat = msg
@@ -118,6 +137,37 @@ class Link:
         elif t == "PARAM_VALUE":
             self.params[msg.param_id] = msg
         return msg
+
+    def _recv_datagram(self, timeout):
+        conn = self.conn
+        data = conn.recv()
+        if not data:
+            if self.tlog is not None:
+                self.tlog.flush()
+            if self.spin_s > 0.0:
+                end = time.perf_counter() + min(self.spin_s, timeout)
+                while not data and time.perf_counter() < end:
+                    data = conn.recv()
+        if not data:
+            if not conn.select(timeout):
+                return None
+            data = conn.recv()
+            if not data:
+                return None
+        try:
+            msgs = self.mav.parse_buffer(data)
+        except Exception:  # whatever the parser chokes on is dropped, never fatal
+            self.bad_frames += 1
+            return None
+        if not msgs:
+            return None
+        if self.tlog is not None:
+            t_us = int(time.time() * 1e6)
+            for m in msgs:
+                if m.get_type() != "BAD_DATA":
+                    self.tlog.write(m.get_msgbuf(), t_us)
+        self._queue.extend(msgs[1:])
+        return msgs[0]
 
     def wait_heartbeat(self, timeout=15.0):
         """Wait for an autopilot's heartbeat; identifies PX4 or ArduPilot."""

@@ -47,15 +47,25 @@ class TlogWriter:
         self.path = Path(path)
         self._f = open(self.path, "wb")
         self.frames = 0
+        self._flushed = time.monotonic()
 
     def write(self, frame, t_us=None):
+        """Append one frame (buffered: :meth:`flush` puts it on disk; the link flushes before
+        it waits for data, so a killed flight loses nothing it had acted on)."""
         if self._f is None:
             return
         if t_us is None:
             t_us = int(time.time() * 1e6)
         self._f.write(struct.pack(">Q", t_us) + bytes(frame))
-        self._f.flush()
         self.frames += 1
+        now = time.monotonic()
+        if now - self._flushed > 0.25:  # and at least every quarter second of a busy link
+            self.flush()
+
+    def flush(self):
+        if self._f is not None:
+            self._f.flush()
+            self._flushed = time.monotonic()
 
     def close(self):
         if self._f is not None:

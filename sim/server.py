@@ -139,6 +139,17 @@ class Link:
         # schedules in integer microseconds of vehicle time, so lockstep never drifts a step
         self.intervals = {mid: int(round(1e6 / hz)) for mid, hz in rates.items()}
         self.next_due = {mid: 0 for mid in rates}
+        self.position_last()
+        self.parser = None  # reused across datagrams while they parse cleanly
+
+    def position_last(self):
+        """Keep LOCAL_POSITION_NED last in the schedule: a step's other telemetry goes out
+        before the position sample a companion's control step runs on.  Called whenever the
+        schedule changes; it also makes the next step look at every entry again."""
+        lpn = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+        if lpn in self.intervals:
+            self.intervals[lpn] = self.intervals.pop(lpn)
+        self.next_any = 0  # the earliest next_due (us of vehicle time)
 
     def learn(self, addr):
         if addr not in self.peers:
@@ -274,16 +285,26 @@ class SitlServer:
             for link in self.links:
                 link.sock.close()
 
+    #: lockstep: poll this long (wall s) for the next setpoint before sleeping in select.  The
+    #: companion answers within a few hundred microseconds, and waking from select costs about
+    #: 50 us on each side of the loop.
+    LOCKSTEP_SPIN_S = 0.002
+
     def _loop(self):
         socks = [link.sock for link in self.links]
         next_tick = time.monotonic()
         while self._running:
             now = time.monotonic()
+            readable = ()
             if self.lockstep and not self._lockstep_stalled():
                 timeout = 0.1
+                end = time.perf_counter() + self.LOCKSTEP_SPIN_S
+                while not readable and time.perf_counter() < end:
+                    readable, _, _ = select.select(socks, [], [], 0.0)
             else:
                 timeout = max(0.0, next_tick - now)
-            readable, _, _ = select.select(socks, [], [], timeout)
+            if not readable:
+                readable, _, _ = select.select(socks, [], [], timeout)
             for sock in readable:
                 self._drain(sock)
             if self.lockstep and not self._lockstep_stalled():
@@ -332,15 +353,22 @@ class SitlServer:
                     self._count("handler_error")
 
     def _parse(self, link, data):
-        """Decode one datagram on its own; count and drop everything that is not a good frame."""
-        parser = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
-        parser.robust_parsing = True
-        parser.signing = link.mav.signing
+        """Decode one datagram on its own; count and drop everything that is not a good frame.
+
+        The link's parser is reused only while every datagram leaves it empty; one that leaves
+        a partial frame behind (or makes it raise) gets a fresh parser for the next datagram,
+        so nothing of a bad datagram carries over."""
+        parser = link.parser
+        if parser is None:
+            parser = link.parser = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+            parser.robust_parsing = True
+            parser.signing = link.mav.signing
         out = []
         try:
             msgs = parser.parse_buffer(data) or []
         except Exception:
             self.stats.bad_length += 1
+            link.parser = None
             return out
         for m in msgs:
             t = m.get_type()
@@ -364,6 +392,7 @@ class SitlServer:
             out.append(m)
         if parser.buf_len() > 0:
             self.stats.truncated += 1
+            link.parser = None
         self.stats.messages += len(out)
         return out
 
@@ -467,7 +496,10 @@ class SitlServer:
             self._last_hb_t = t
             self._last_hb_wall = time.monotonic()
         for link in self.links:
+            if t < link.next_any:
+                continue  # nothing of this link's schedule is due
             link.begin()
+            next_any = math.inf
             for mid, interval in link.intervals.items():
                 if not interval:
                     continue
@@ -477,7 +509,10 @@ class SitlServer:
                     if msg is not None:
                         link.mav.send(msg)
                     nxt = due + interval
-                    link.next_due[mid] = nxt if nxt > t else t + interval
+                    due = link.next_due[mid] = nxt if nxt > t else t + interval
+                if due < next_any:
+                    next_any = due
+            link.next_any = next_any
             link.flush()
 
     def statustext(self, severity, text):
@@ -841,6 +876,7 @@ class SitlServer:
         else:
             link.intervals[mid] = max(1, int(round(interval_us)))
             link.next_due[mid] = int(round(self.vehicle.time * 1e6))
+        link.position_last()
         return M.MAV_RESULT_ACCEPTED
 
     # setpoints
@@ -863,20 +899,20 @@ class SitlServer:
 
     def _on_attitude_target(self, link, msg):
         mask = msg.type_mask
-        q = np.array(msg.q, dtype=float)
-        rates = np.array([msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate])
+        q = [float(c) for c in msg.q]
+        rates = [float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)]
         thrust = float(msg.thrust)
         if not mask & AT_ATTITUDE:
-            if not np.all(np.isfinite(q)):
+            if not all(math.isfinite(c) for c in q):
                 return self._reject_setpoint("non-finite quaternion")
-            if abs(np.linalg.norm(q) - 1.0) > 1e-3:
+            if abs(math.sqrt(sum(c * c for c in q)) - 1.0) > 1e-3:
                 return self._reject_setpoint("quaternion not unit length")
         if not mask & AT_THROTTLE:
             if not math.isfinite(thrust):
                 return self._reject_setpoint("non-finite thrust")
             if not 0.0 <= thrust <= 1.0:
                 return self._reject_setpoint("thrust out of range")
-        if (mask & AT_RATES) != AT_RATES and not np.all(np.isfinite(rates)):
+        if (mask & AT_RATES) != AT_RATES and not all(math.isfinite(c) for c in rates):
             return self._reject_setpoint("non-finite body rates")
         if mask & AT_ATTITUDE and (mask & AT_RATES) == AT_RATES:
             return self._reject_setpoint("attitude and rates both ignored")

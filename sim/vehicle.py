@@ -394,11 +394,12 @@ class SimVehicle:
         sp = self._sp
         mask = int(type_mask)
         if not mask & IGNORE_ATTITUDE:
-            qa = np.asarray(q, dtype=float).reshape(4)
-            n = float(np.linalg.norm(qa))
-            if not (np.all(np.isfinite(qa)) and n > 1e-6):
+            qa = np.asarray(q, dtype=float).reshape(4).tolist()
+            n = math.sqrt(qa[0] * qa[0] + qa[1] * qa[1] + qa[2] * qa[2] + qa[3] * qa[3])
+            if not (math.isfinite(n) and n > 1e-6):  # a NaN or inf component makes n so
                 raise ValueError(f"attitude quaternion must be finite and non-zero (got {q!r})")
-            sp[A.SP_Q:A.SP_Q + 4] = qa / n
+            for i in range(4):
+                sp[A.SP_Q + i] = qa[i] / n
         sp[A.SP_ATT_VALID] = 0.0 if mask & IGNORE_ATTITUDE else 1.0
         for i, bit in enumerate((IGNORE_ROLL_RATE, IGNORE_PITCH_RATE, IGNORE_YAW_RATE)):
             given = body_rates is not None and not mask & bit
