@@ -24,7 +24,7 @@ import numpy as np
 
 from .control import PositionController
 from .link import M, result_name
-from .record import error_figures
+from .record import COLUMNS, error_figures
 from .trajectories import Reference
 
 PX4_OFFBOARD = (6, 0)
@@ -32,6 +32,7 @@ PX4_HOLD = (4, 3)
 AP_GUIDED_NOGPS = 20
 AP_LOITER = 5
 TRUE_DIST = "TRUE_DIST"
+YAW_COLUMN = COLUMNS.index("yaw")  # where the vehicle's yaw sits in a controller.csv row
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
 LOCKSTEP_SPIN_S = 0.002
@@ -153,6 +154,9 @@ class Flight:
         self.yaw = 0.0
         self.landed_state = None
         self.true_dist = np.full(3, math.nan)
+        self._row = None  # the last control step's table row, waiting for its attitude, truth
+        self._row_ms = None
+        self._row_have = 0
         self.reason = None
         self.samples = 0
         self.missed = 0
@@ -250,6 +254,8 @@ class Flight:
     def _dispatch(self, msg):
         t = msg.get_type()
         if t == "LOCAL_POSITION_NED":
+            if self._row is not None:
+                self._write_row()  # whatever of the last sample's attitude and truth came
             s = Sample(msg.time_boot_ms / 1000.0, np.array([msg.x, msg.y, msg.z]),
                        np.array([msg.vx, msg.vy, msg.vz]))
             if self.last is not None and s.t <= self.last.t:
@@ -266,6 +272,7 @@ class Flight:
                 self.latency.append(time.perf_counter() - t_in)
         elif t == "ATTITUDE":
             self.yaw = msg.yaw
+            self._row_parts(msg.time_boot_ms, 1)
         elif t == "EXTENDED_SYS_STATE":
             self.landed_state = msg.landed_state
         elif t == "COMMAND_ACK" and self._held and self.last is not None:
@@ -273,6 +280,7 @@ class Flight:
             self._step(self.last)
         elif t == "DEBUG_VECT" and msg.name == TRUE_DIST:
             self.true_dist = np.array([msg.x, msg.y, msg.z])
+            self._row_parts(int(round(msg.time_usec / 1000.0)), 2)
 
     def _send(self, t, q, thrust):
         self._setpoint = (q, thrust)
@@ -448,17 +456,23 @@ class Flight:
         self._progress(t, r, s)
 
     def _log_row(self, t, r, s, q, thrust):
+        """The table row of this control step.  Its vehicle attitude and true disturbance are
+        those of the same sample: the bundled vehicle sends the position sample first, on its
+        own, and ATTITUDE and TRUE_DIST right after, so the row is written when both have come
+        (or, from an autopilot that sends no TRUE_DIST, when the next sample comes)."""
         c = self.ctrl
         z = c.z
         v = c.td
         phase = self._segment_name(t)
-        row = [t, phase, *r.pos, *r.vel, *r.acc, r.yaw, *s.pos, *s.vel, self.yaw]
-        row += [float(z[i, j]) if self.kind != "pd" else math.nan for i in range(3)
-                for j in range(3)]
-        row += [float(v[i, j]) if self.kind == "adrc" else math.nan for i in range(3)
-                for j in range(2)]
-        row += [*c.accel_command, *c.accel_applied, *q, thrust, *self.true_dist]
-        self.rec.table.row([float(x) if not isinstance(x, str) else x for x in row])
+        row = [float(t), phase, *r.pos.tolist(), *r.vel.tolist(), *r.acc.tolist(), float(r.yaw),
+               *s.pos.tolist(), *s.vel.tolist(), math.nan]
+        row += z.ravel().tolist() if self.kind != "pd" else [math.nan] * 9
+        row += v.ravel().tolist() if self.kind == "adrc" else [math.nan] * 6
+        row += [*c.accel_command.tolist(), *c.accel_applied.tolist(), *map(float, q),
+                float(thrust), math.nan, math.nan, math.nan]
+        self._row = row
+        self._row_ms = int(round(s.t * 1000.0))
+        self._row_have = 0
         self.rows_t.append(t)
         self.rows_ref.append(r.pos)
         self.rows_pos.append(s.pos)
@@ -466,6 +480,21 @@ class Flight:
             self._last_named = s.t
             for i, a in enumerate("xyz"):
                 self.link.named_float(s.t * 1000.0, f"z3_{a}", float(z[i, 2]))
+
+    def _row_parts(self, ms, part):
+        """ATTITUDE (1) or TRUE_DIST (2) of the pending row's sample came; write it when both
+        have."""
+        if self._row is not None and ms == self._row_ms:
+            self._row_have |= part
+            if self._row_have == 3:
+                self._write_row()
+
+    def _write_row(self):
+        row = self._row
+        self._row = None
+        row[YAW_COLUMN] = float(self.yaw)
+        row[-3:] = self.true_dist.tolist()
+        self.rec.table.row(row)
 
     def _segment_name(self, t):
         name = self.phases[0][1] if self.phases else ""
@@ -476,16 +505,18 @@ class Flight:
 
     def _breach(self, s):
         sf = self.m.safety
-        rel = s.pos - self.origin
-        alt = -rel[2]
+        north, east, down = (s.pos - self.origin).tolist()
+        alt = -down
+        vn, ve, vd = s.vel.tolist()
+        speed = math.sqrt(vn * vn + ve * ve + vd * vd)
         why = None
-        if not sf.geofence_north[0] <= rel[0] <= sf.geofence_north[1] or \
-                not sf.geofence_east[0] <= rel[1] <= sf.geofence_east[1]:
-            why = f"geofence breach at north {rel[0]:.1f} m, east {rel[1]:.1f} m"
+        if not sf.geofence_north[0] <= north <= sf.geofence_north[1] or \
+                not sf.geofence_east[0] <= east <= sf.geofence_east[1]:
+            why = f"geofence breach at north {north:.1f} m, east {east:.1f} m"
         elif alt > sf.altitude_max or alt < sf.altitude_min:
             why = f"altitude limit breach at {alt:.1f} m"
-        elif float(np.linalg.norm(s.vel)) > sf.max_speed:
-            why = f"speed limit breach at {np.linalg.norm(s.vel):.1f} m/s"
+        elif speed > sf.max_speed:
+            why = f"speed limit breach at {speed:.1f} m/s"
         if why is None:
             return False
         self._abort_land(why)
@@ -602,6 +633,8 @@ class Flight:
             self.out.flush()
 
     def _finish(self):
+        if self._row is not None:
+            self._write_row()
         t = np.asarray(self.rows_t)
         ref = np.asarray(self.rows_ref).reshape(-1, 3)
         pos = np.asarray(self.rows_pos).reshape(-1, 3)

@@ -49,6 +49,7 @@ AT_ATTITUDE = 128
 MSG = mavlink  # message ids as MSG.MAVLINK_MSG_ID_*
 
 # PX4's default onboard-link rates (Hz) and a slower ground-station set
+LPN = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 ONBOARD_RATES = {
     MSG.MAVLINK_MSG_ID_ATTITUDE: 100.0,
     MSG.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
@@ -139,16 +140,18 @@ class Link:
         # schedules in integer microseconds of vehicle time, so lockstep never drifts a step
         self.intervals = {mid: int(round(1e6 / hz)) for mid, hz in rates.items()}
         self.next_due = {mid: 0 for mid in rates}
-        self.position_last()
+        self.position_first()
         self.parser = None  # reused across datagrams while they parse cleanly
 
-    def position_last(self):
-        """Keep LOCAL_POSITION_NED last in the schedule: a step's other telemetry goes out
-        before the position sample a companion's control step runs on.  Called whenever the
-        schedule changes; it also makes the next step look at every entry again."""
+    def position_first(self):
+        """Keep LOCAL_POSITION_NED first in the schedule (it goes out in a datagram of its
+        own, so a companion's control step can start while the rest of the step's telemetry
+        is still being built).  Called whenever the schedule changes; it also makes the next
+        step look at every entry again."""
         lpn = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED
         if lpn in self.intervals:
-            self.intervals[lpn] = self.intervals.pop(lpn)
+            self.intervals = {lpn: self.intervals[lpn],
+                              **{k: v for k, v in self.intervals.items() if k != lpn}}
         self.next_any = 0  # the earliest next_due (us of vehicle time)
 
     def learn(self, addr):
@@ -508,6 +511,9 @@ class SitlServer:
                     msg = self._build(mid)
                     if msg is not None:
                         link.mav.send(msg)
+                        if mid == LPN:  # the sample leaves at once, on its own
+                            link.flush()
+                            link.begin()
                     nxt = due + interval
                     due = link.next_due[mid] = nxt if nxt > t else t + interval
                 if due < next_any:
@@ -876,7 +882,7 @@ class SitlServer:
         else:
             link.intervals[mid] = max(1, int(round(interval_us)))
             link.next_due[mid] = int(round(self.vehicle.time * 1e6))
-        link.position_last()
+        link.position_first()
         return M.MAV_RESULT_ACCEPTED
 
     # setpoints

@@ -13,7 +13,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from mavadrc import compare as C  # noqa: E402
 from mavadrc.experiment import (experiment_from_text, load_experiment, run_inprocess,  # noqa: E402
                                 run_mavlink)
-from mavadrc.inprocess import L_POS, L_T  # noqa: E402
+from mavadrc.inprocess import L_DIST, L_POS, L_T, L_YAW  # noqa: E402
 from mavadrc.record import read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 
@@ -53,6 +53,11 @@ def test_fast_path_matches_the_mavlink_lockstep_flight_within_a_millimetre(tiny,
         assert abs(rec_fast["after_settle"][key] - rec_wire["after_settle"][key]) < 1e-3
     # the wind really moved it: this is not agreement between two vehicles standing still
     assert rec_fast["after_settle"]["max_error_m"] > 0.005
+    # each row's attitude and true disturbance are those of its own sample, on both paths
+    assert np.max(np.abs(tab["yaw"] - log[:, L_YAW])) < 1e-6
+    dist = np.column_stack([tab["true_dist_x"], tab["true_dist_y"], tab["true_dist_z"]])
+    assert np.max(np.abs(dist - log[:, L_DIST:L_DIST + 3])) < 1e-5
+    assert np.max(np.abs(dist[1:] - log[:-1, L_DIST:L_DIST + 3])) > 1e-3  # (not trivially)
 
 
 def test_the_oracle_is_refused_over_mavlink(tiny, tmp_path):
