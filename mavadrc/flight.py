@@ -196,19 +196,18 @@ class Flight:
     def run(self):
         link = self.link
         link.on_text = self.on_text
+        # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
+        # while the vehicle comes up; with the hover thrust still to be read, made again after
+        hover_known = self.hover is not None
+        self.ctrl = self._make_controller(self.hover if hover_known else 0.5)
         hb = link.wait_heartbeat(self.heartbeat_timeout)
         self.say(f"connected to system {link.target_system} ({link.autopilot}, "
                  f"mode {hb.custom_mode:#x}) on {link.url}")
-        if self.hover is None:
+        if not hover_known:
             name = "MPC_THR_HOVER" if link.autopilot == "px4" else "MOT_THST_HOVER"
             self.hover = float(link.param_read(name))
             self.say(f"hover thrust {self.hover:.3f} from the vehicle's {name}")
-        self.ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind,
-                                    vehicle=self.m.vehicle,
-                                    attitude_controller=self.m.attitude_controller)
-        self.ctrl.reset(np.zeros(3))  # compile every kernel of the loop now, not mid-flight
-        self.ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
-        self.ctrl.reset()
+            self.ctrl = self._make_controller(self.hover)
         self.h = 1.0 / self.m.controller.rate_hz
         self._request_streams()
         if link.autopilot == "ardupilot":
@@ -239,6 +238,14 @@ class Flight:
             except KeyboardInterrupt:
                 self.say("second interrupt: leaving the vehicle in its land mode")
         return self._finish()
+
+    def _make_controller(self, hover):
+        ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=self.kind,
+                               vehicle=self.m.vehicle, attitude_controller=self.m.attitude_controller)
+        ctrl.reset(np.zeros(3))
+        ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
+        ctrl.reset()
+        return ctrl
 
     def _request_streams(self):
         rate = self.m.controller.rate_hz
