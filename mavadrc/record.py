@@ -77,35 +77,28 @@ class TableWriter:
     """CSV of the controller internals; flushed every ``flush_every`` rows and on close.
 
     Numbers are written with 9 significant digits, NaN as an empty field; ``text`` columns as
-    CSV strings.  A row is formatted in one pass per run of numeric columns (a step's 48
-    values cost a few microseconds, which matters in a lockstep loop)."""
+    strings.  The numbers of a row are formatted in one pass (a step's 48 values cost a few
+    microseconds, which matters in a lockstep loop)."""
 
     def __init__(self, path, flush_every=25, columns=COLUMNS, text=("phase",)):
         self.path = Path(path)
         self._f = open(self.path, "w", newline="")
-        csv.writer(self._f).writerow(columns)
+        self._w = csv.writer(self._f)
+        self._w.writerow(columns)
         self._f.flush()
         self._n = 0
         self.flush_every = flush_every
-        self._layout = []  # ("text", i) or ("numbers", start, stop, format)
-        start = 0
-        for i, name in enumerate(list(columns) + [None]):
-            if name is None or name in text:
-                if i > start:
-                    self._layout.append(("numbers", start, i, ",".join(["%.9g"] * (i - start))))
-                if name is not None:
-                    self._layout.append(("text", i))
-                start = i + 1
+        self._text = [i for i, c in enumerate(columns) if c in text]
+        self._fmt = ",".join(["%.9g"] * len(columns))
 
     def row(self, values):
-        parts = []
-        for item in self._layout:
-            if item[0] == "text":
-                parts.append(_csv_field(str(values[item[1]])))
-            else:
-                _, a, b, fmt = item
-                parts.append((fmt % tuple(values[a:b])).replace("nan", ""))
-        self._f.write(",".join(parts) + "\r\n")
+        nums = list(values)
+        for i in self._text:
+            nums[i] = 0.0
+        cells = (self._fmt % tuple(nums)).replace("nan", "").split(",")
+        for i in self._text:
+            cells[i] = values[i]
+        self._w.writerow(cells)
         self._n += 1
         if self._n % self.flush_every == 0:
             self._f.flush()
@@ -115,12 +108,6 @@ class TableWriter:
             self._f.flush()
             self._f.close()
             self._f = None
-
-
-def _csv_field(text):
-    if any(c in text for c in ',"\r\n'):
-        return '"' + text.replace('"', '""') + '"'
-    return text
 
 
 def read_table(path):
