@@ -48,8 +48,9 @@ AT_ATTITUDE = 128
 
 MSG = mavlink  # message ids as MSG.MAVLINK_MSG_ID_*
 
+LPN = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED  # the sample a companion's control step runs on
+
 # PX4's default onboard-link rates (Hz) and a slower ground-station set
-LPN = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 ONBOARD_RATES = {
     MSG.MAVLINK_MSG_ID_ATTITUDE: 100.0,
     MSG.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
@@ -138,21 +139,23 @@ class Link:
         mav.file = _Sender(self)
         self.default_rates = dict(rates)
         # schedules in integer microseconds of vehicle time, so lockstep never drifts a step
-        self.intervals = {mid: int(round(1e6 / hz)) for mid, hz in rates.items()}
-        self.next_due = {mid: 0 for mid in rates}
-        self.position_first()
+        self.intervals = {}
+        self.next_due = {}
+        for mid, hz in rates.items():
+            self.set_interval(mid, int(round(1e6 / hz)), due=0)
         self.parser = None  # reused across datagrams while they parse cleanly
 
-    def position_first(self):
-        """Keep LOCAL_POSITION_NED first in the schedule (it goes out in a datagram of its
-        own, so a companion's control step can start while the rest of the step's telemetry
-        is still being built).  Called whenever the schedule changes; it also makes the next
-        step look at every entry again."""
-        lpn = MSG.MAVLINK_MSG_ID_LOCAL_POSITION_NED
-        if lpn in self.intervals:
-            self.intervals = {lpn: self.intervals[lpn],
-                              **{k: v for k, v in self.intervals.items() if k != lpn}}
-        self.next_any = 0  # the earliest next_due (us of vehicle time)
+    def set_interval(self, mid, interval_us, due=None):
+        """Schedule message ``mid`` every ``interval_us`` us of vehicle time (None: never),
+        next at ``due`` if given.  LOCAL_POSITION_NED stays first in the schedule (it goes out
+        in a datagram of its own, so a companion's control step can start while the rest of
+        the step's telemetry is still being built)."""
+        self.intervals[mid] = interval_us
+        if due is not None:
+            self.next_due[mid] = due
+        if LPN in self.intervals:
+            self.intervals = {LPN: self.intervals.pop(LPN), **self.intervals}
+        self.next_any = 0  # the earliest next_due (us of vehicle time): look at every entry
 
     def learn(self, addr):
         if addr not in self.peers:
@@ -875,14 +878,13 @@ class SitlServer:
         if mid == M.MAVLINK_MSG_ID_HEARTBEAT:
             return M.MAV_RESULT_ACCEPTED  # always 1 Hz
         if interval_us < 0:
-            link.intervals[mid] = None
+            link.set_interval(mid, None)
         elif interval_us == 0:
             hz = link.default_rates.get(mid)
-            link.intervals[mid] = None if hz is None else int(round(1e6 / hz))
+            link.set_interval(mid, None if hz is None else int(round(1e6 / hz)))
         else:
-            link.intervals[mid] = max(1, int(round(interval_us)))
-            link.next_due[mid] = int(round(self.vehicle.time * 1e6))
-        link.position_first()
+            link.set_interval(mid, max(1, int(round(interval_us))),
+                              due=int(round(self.vehicle.time * 1e6)))
         return M.MAV_RESULT_ACCEPTED
 
     # setpoints
