@@ -224,7 +224,7 @@ def compare_figures(seeds=10, mavlink=True):
     lockstep."""
     import tempfile
 
-    from .compare import run_matrix
+    from .compare import run_matrix, runs_flown
     from .experiment import load_experiment, run_inprocess, run_mavlink
 
     exp = load_experiment("thesis")
@@ -232,7 +232,7 @@ def compare_figures(seeds=10, mavlink=True):
     run_matrix(exp, seeds=[0], progress=False, keep_logs_seed=None)  # compile / load caches
     for n in (1, seeds):
         records, _, wall = run_matrix(exp, seeds=list(range(n)), progress=False)
-        flown = sum(1 for r in records if "same_as_seed" not in r)
+        flown = runs_flown(records)
         fig[f"compare_thesis_{n}seed_wall_s"] = wall
         fig[f"compare_thesis_{n}seed_runs_per_s"] = len(records) / wall
         fig[f"compare_thesis_{n}seed_runs_flown"] = flown

@@ -7,6 +7,7 @@ in one folder: ``results.json`` (one record per run), ``results.csv`` (the same,
 ``report.md`` (tables, findings, goals) and figures.
 """
 
+import collections
 import concurrent.futures as cf
 import json
 import math
@@ -115,9 +116,8 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
     tasks = [(exp.source, exp.text, i, j, s, via, s == keep_logs_seed,
               str(Path(out_dir or ".") / "flights")) for i, j, s in flown]
     bar = Progress(len(runs), out=stream, enabled=progress)
-    repeats = {}
-    for r, rep in same.items():
-        repeats[rep] = repeats.get(rep, 0) + 1
+    repeats = collections.Counter(same.values())  # flown run -> how many records copy it
+    ticks = [1 + repeats[r] for r in flown]  # progress: a flown run and its copies
     t0 = time.perf_counter()
     results = [None] * len(tasks)
     if scheduler:
@@ -129,7 +129,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
             for fut in as_completed(futures):
                 k = index[fut.key]
                 results[k] = fut.result()
-                bar.step(1 + repeats.get(flown[k], 0))
+                bar.step(ticks[k])
     else:
         if via == "inprocess":
             _warm_up(exp)
@@ -139,13 +139,13 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
         if n <= 1 or len(tasks) <= 1:
             for k, task in enumerate(tasks):
                 results[k] = run_task(task)
-                bar.step(1 + repeats.get(flown[k], 0))
+                bar.step(ticks[k])
         else:
             with process_pool(n) as pool:
                 chunk = max(1, min(8, len(tasks) // (4 * n)))
                 for k, res in enumerate(pool.map(run_task, tasks, chunksize=chunk)):
                     results[k] = res
-                    bar.step(1 + repeats.get(flown[k], 0))
+                    bar.step(ticks[k])
     wall = time.perf_counter() - t0
     by_run = {r: res[0] for r, res in zip(flown, results)}
     for r in repeats:
@@ -159,6 +159,11 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
         records.append(rec)
     logs = {(i, j): res[1] for (i, j, s), res in zip(flown, results) if res[1] is not None}
     return records, logs, wall
+
+
+def runs_flown(records):
+    """How many of run_matrix's records were flown (the others copy a seed-independent run)."""
+    return sum(1 for r in records if "same_as_seed" not in r)
 
 
 def write_results(folder, exp, records, meta):
@@ -230,7 +235,7 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
                                      via=via, out_dir=folder, progress=progress,
                                      keep_logs_seed=seed_list[0] if figures else None,
                                      stream=stream, rerun_identical=rerun_identical)
-    flown = sum(1 for r in records if "same_as_seed" not in r)
+    flown = runs_flown(records)
     meta = {"seeds": seed_list, "via": via, "scheduler": scheduler, "runs": len(records),
             "rerun_identical": bool(rerun_identical),
             "runs_flown": flown, "wall_s": wall,

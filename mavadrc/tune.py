@@ -69,13 +69,14 @@ def _cost(exp, j, scenarios, seeds, spec=None):
     total = 0.0
     n = 0
     for i in scenarios:
-        some = seeds if exp.scenarios[i].random else seeds[:1]
-        for s in some:
+        random = exp.scenarios[i].random
+        weight = 1 if random else len(seeds)
+        for s in seeds if random else seeds[:1]:
             rec, _ = run_inprocess(exp, i, j, s, spec=spec)
             e = rec["after_settle"]["rms_error_m"]
             ok = rec["feasible"] and math.isfinite(e)
-            total += len(seeds) // len(some) * math.log(max(e, 1e-6) if ok else INFEASIBLE_COST)
-            n += len(seeds) // len(some)
+            total += weight * math.log(max(e, 1e-6) if ok else INFEASIBLE_COST)
+            n += weight
     return math.exp(total / n)
 
 
