@@ -22,24 +22,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .console import Console
 from .control import PositionController
-from .link import M, result_name
-from .record import COLUMNS, error_figures
+from .link import FlightError, M, result_name
+from .record import Recorder
+from .sequence import sequence_for
+from .supervisor import Supervisor
 from .trajectories import Reference
 
-PX4_OFFBOARD = (6, 0)
-PX4_HOLD = (4, 3)
-AP_GUIDED_NOGPS = 20
-AP_LOITER = 5
 TRUE_DIST = "TRUE_DIST"
-YAW_COLUMN = COLUMNS.index("yaw")  # where the vehicle's yaw sits in a controller.csv row
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
 LOCKSTEP_SPIN_S = 0.002
-
-
-class FlightError(RuntimeError):
-    """The flight could not start or go on; the message says why, in the vehicle's words."""
 
 
 @dataclass
@@ -121,7 +115,13 @@ def level_quat(yaw):
 
 
 class Flight:
-    """One flight of a mission over a :class:`~mavadrc.link.Link`."""
+    """One flight of a mission over a :class:`~mavadrc.link.Link`.
+
+    The flight owns the phases; what differs between autopilots is in its
+    :class:`~mavadrc.sequence.Sequence`, the safety checks in its
+    :class:`~mavadrc.supervisor.Supervisor`, the table in its :class:`~mavadrc.record.Recorder`
+    and what the user sees in its :class:`~mavadrc.console.Console`.
+    """
 
     CUT_S = 0.5  # thrust ramp down after touchdown
 
@@ -130,11 +130,10 @@ class Flight:
                  start_at=None):
         self.m = mission
         self.link = link
-        self.rec = record
         self.kind = kind or mission.controller.kind
         self.hover = hover_thrust if hover_thrust is not None else mission.hover_thrust
-        self.out = out
-        self.progress = progress
+        self.console = Console(out, progress)
+        self.recorder = Recorder(record, self.kind)
         self.max_wall_s = max_wall_s
         self.heartbeat_timeout = heartbeat_timeout
         self.lockstep = lockstep
@@ -146,50 +145,42 @@ class Flight:
         self._held = False
         # a lockstep vehicle cannot move on without us, so a slow answer (a machine busy
         # compiling) is not a lost link; give it longer before calling telemetry stale
-        self.telemetry_timeout = mission.safety.telemetry_timeout_s if not lockstep else max(
-            5.0, mission.safety.telemetry_timeout_s)
+        self.supervisor = Supervisor(mission.safety, mission.safety.telemetry_timeout_s
+                                     if not lockstep else max(5.0, mission.safety.telemetry_timeout_s))
+        self.seq = None
         self.texts = []
         self.phase = "connect"
         self.last = None  # latest Sample
         self.yaw = 0.0
         self.landed_state = None
-        self.true_dist = np.full(3, math.nan)
-        self._row = None  # the last control step's table row, waiting for its attitude, truth
-        self._row_ms = None
-        self._row_have = 0
         self.reason = None
         self.samples = 0
         self.missed = 0
         self.steps = 0
         self.setpoints = 0
         self.latency = []
-        self.rows_t, self.rows_ref, self.rows_pos = [], [], []
         self.ctrl = None
         self.traj = None
         self.mission_start = None
         self.phases = []
         self._phase_t0 = None
-        self._last_print = 0.0
         self._last_named = -1.0
         self._last_sample_wall = None
         self._setpoint = (level_quat(0.0), 0.0)
-        # wall-clock marks (time.monotonic) of the periodic sends and prints
+        # wall-clock marks (time.monotonic) of the periodic sends
         self._hb_wall = self._kick_wall = self._last_send_wall = 0.0
-        self._hover_wall = self._last_line = 0.0
+        self._hover_wall = 0.0
         self._land_cmd_wall = self._cmd_sent_wall = 0.0
         self._tries = 0
 
     # --- reporting -----------------------------------------------------------------------------
 
     def say(self, text):
-        if self.progress:
-            self.out.write("\r\033[K" if self.out.isatty() else "")
-        self.out.write(text + "\n")
-        self.out.flush()
+        self.console.say(text)
 
     def on_text(self, severity, text):
         self.texts.append(text)
-        self.say(f"  vehicle: {text}")
+        self.console.vehicle(text)
 
     # --- the loop ------------------------------------------------------------------------------
 
@@ -201,17 +192,17 @@ class Flight:
         hover_known = self.hover is not None
         self.ctrl = self._make_controller(self.hover if hover_known else 0.5)
         hb = link.wait_heartbeat(self.heartbeat_timeout)
+        self.seq = sequence_for(link.autopilot)
         self.say(f"connected to system {link.target_system} ({link.autopilot}, "
                  f"mode {hb.custom_mode:#x}) on {link.url}")
         if not hover_known:
-            name = "MPC_THR_HOVER" if link.autopilot == "px4" else "MOT_THST_HOVER"
+            name = self.seq.hover_param
             self.hover = float(link.param_read(name))
             self.say(f"hover thrust {self.hover:.3f} from the vehicle's {name}")
             self.ctrl = self._make_controller(self.hover)
         self.h = 1.0 / self.m.controller.rate_hz
         self._request_streams()
-        if link.autopilot == "ardupilot":
-            self._check_guid_options()  # before the setpoint stream (and a lockstep clock) starts
+        self.seq.preflight(self)  # before the setpoint stream (and a lockstep clock) starts
         wall0 = time.monotonic()
         self.phase = "prearm"
         try:
@@ -261,8 +252,7 @@ class Flight:
     def _dispatch(self, msg):
         t = msg.get_type()
         if t == "LOCAL_POSITION_NED":
-            if self._row is not None:
-                self._write_row()  # whatever of the last sample's attitude and truth came
+            self.recorder.sample_came()  # whatever of the last sample's attitude and truth came
             s = Sample(msg.time_boot_ms / 1000.0, np.array([msg.x, msg.y, msg.z]),
                        np.array([msg.vx, msg.vy, msg.vz]))
             if self.last is not None and s.t <= self.last.t:
@@ -279,15 +269,15 @@ class Flight:
                 self.latency.append(time.perf_counter() - t_in)
         elif t == "ATTITUDE":
             self.yaw = msg.yaw
-            self._row_parts(msg.time_boot_ms, 1)
+            self.recorder.attitude(msg.time_boot_ms, msg.yaw)
         elif t == "EXTENDED_SYS_STATE":
             self.landed_state = msg.landed_state
         elif t == "COMMAND_ACK" and self._held and self.last is not None:
             self._held = False
             self._step(self.last)
         elif t == "DEBUG_VECT" and msg.name == TRUE_DIST:
-            self.true_dist = np.array([msg.x, msg.y, msg.z])
-            self._row_parts(int(round(msg.time_usec / 1000.0)), 2)
+            self.recorder.truth(int(round(msg.time_usec / 1000.0)),
+                                np.array([msg.x, msg.y, msg.z]))
 
     def _send(self, t, q, thrust):
         self._setpoint = (q, thrust)
@@ -352,28 +342,8 @@ class Flight:
             return
         if s.t - self._phase_t0 < 0.3:  # setpoints must be streaming before OFFBOARD
             return
-        self._request_mode()
+        self.seq.request_control(self.link)
         self._enter("mode", s)
-
-    def _request_mode(self):
-        if self.link.autopilot == "px4":
-            self.link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_OFFBOARD)
-        else:
-            self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
-
-    def _check_guid_options(self):
-        opts = int(self.link.param_read("GUID_OPTIONS"))
-        if opts & 8:
-            return
-        if not self.m.safety.set_guid_options:
-            raise FlightError(
-                "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust would be "
-                "read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the vehicle, or put "
-                "'set_guid_options: true' under safety: in the mission to let mavadrc set it")
-        got = int(self.link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32))
-        if not got & 8:
-            raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
-        self.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
 
     def _retry(self, resend, what):
         ack_wait = 1.0
@@ -387,7 +357,7 @@ class Flight:
     def _mode(self, s):
         ack = self.link.acks.get(M.MAV_CMD_DO_SET_MODE)
         if ack is None:
-            return self._retry(self._request_mode, "mode change")
+            return self._retry(lambda: self.seq.request_control(self.link), "mode change")
         if ack.result == M.MAV_RESULT_ACCEPTED:
             self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
             return self._enter("arming", s)
@@ -395,9 +365,8 @@ class Flight:
             self._tries += 1
             self.link.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
             self._cmd_sent_wall = time.monotonic()
-            return self._request_mode()
-        mode = "OFFBOARD" if self.link.autopilot == "px4" else "GUIDED_NOGPS"
-        raise FlightError(f"the vehicle refused {mode}: {result_name(ack.result)}")
+            return self.seq.request_control(self.link)
+        raise FlightError(f"the vehicle refused {self.seq.control_mode}: {result_name(ack.result)}")
 
     def _arming(self, s):
         ack = self.link.acks.get(M.MAV_CMD_COMPONENT_ARM_DISARM)
@@ -430,11 +399,7 @@ class Flight:
     def _in_control(self):
         """Whether the autopilot is still in the mode that takes our setpoints."""
         hb = self.link.heartbeat
-        if hb is None:
-            return True
-        if self.link.autopilot == "px4":
-            return (hb.custom_mode >> 16) & 0xFF == PX4_OFFBOARD[0]
-        return hb.custom_mode in (AP_GUIDED_NOGPS, 4)
+        return hb is None or self.seq.in_control(hb)
 
     def _mission_step(self, s):
         if not self._in_control():
@@ -449,7 +414,8 @@ class Flight:
         q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw)
         self._send(s.t, q, thrust)
         self.steps += 1
-        self._log_row(t, r, s, q, thrust)
+        self.recorder.step(t, self._segment_name(t), r, s, self.ctrl, q, thrust)
+        self._named_values(s)
         if self._breach(s):
             return
         if t >= self.traj.duration:
@@ -460,48 +426,16 @@ class Flight:
                 return
             self._cut_from = thrust
             self._enter("touchdown", s)
-        self._progress(t, r, s)
+        self.console.progress(self._segment_name(t), t, self.traj.duration,
+                              float(np.linalg.norm(s.pos - r.pos)))
 
-    def _log_row(self, t, r, s, q, thrust):
-        """The table row of this control step.  Its vehicle attitude and true disturbance are
-        those of the same sample: the bundled vehicle sends the position sample first, on its
-        own, and ATTITUDE and TRUE_DIST right after, so the row is written when both have come
-        (or, from an autopilot that sends no TRUE_DIST, when the next sample comes)."""
-        c = self.ctrl
-        z = c.z
-        v = c.td
-        phase = self._segment_name(t)
-        row = [float(t), phase, *r.pos.tolist(), *r.vel.tolist(), *r.acc.tolist(), float(r.yaw),
-               *s.pos.tolist(), *s.vel.tolist(), math.nan]
-        row += z.ravel().tolist() if self.kind != "pd" else [math.nan] * 9
-        row += v.ravel().tolist() if self.kind == "adrc" else [math.nan] * 6
-        row += [*c.accel_command.tolist(), *c.accel_applied.tolist(), *map(float, q),
-                float(thrust), math.nan, math.nan, math.nan]
-        self._row = row
-        self._row_ms = int(round(s.t * 1000.0))
-        self._row_have = 0
-        self.rows_t.append(t)
-        self.rows_ref.append(r.pos)
-        self.rows_pos.append(s.pos)
-        if self.kind != "pd" and s.t - self._last_named >= 0.1:  # live, for a ground station
+    def _named_values(self, s):
+        """The observers' disturbance estimates at 10 Hz, live, for a ground station."""
+        if self.kind != "pd" and s.t - self._last_named >= 0.1:
             self._last_named = s.t
+            z3 = self.ctrl.disturbance
             for i, a in enumerate("xyz"):
-                self.link.named_float(s.t * 1000.0, f"z3_{a}", float(z[i, 2]))
-
-    def _row_parts(self, ms, part):
-        """ATTITUDE (1) or TRUE_DIST (2) of the pending row's sample came; write it when both
-        have."""
-        if self._row is not None and ms == self._row_ms:
-            self._row_have |= part
-            if self._row_have == 3:
-                self._write_row()
-
-    def _write_row(self):
-        row = self._row
-        self._row = None
-        row[YAW_COLUMN] = float(self.yaw)
-        row[-3:] = self.true_dist.tolist()
-        self.rec.table.row(row)
+                self.link.named_float(s.t * 1000.0, f"z3_{a}", float(z3[i]))
 
     def _segment_name(self, t):
         name = self.phases[0][1] if self.phases else ""
@@ -511,19 +445,7 @@ class Flight:
         return name
 
     def _breach(self, s):
-        sf = self.m.safety
-        north, east, down = (s.pos - self.origin).tolist()
-        alt = -down
-        vn, ve, vd = s.vel.tolist()
-        speed = math.sqrt(vn * vn + ve * ve + vd * vd)
-        why = None
-        if not sf.geofence_north[0] <= north <= sf.geofence_north[1] or \
-                not sf.geofence_east[0] <= east <= sf.geofence_east[1]:
-            why = f"geofence breach at north {north:.1f} m, east {east:.1f} m"
-        elif alt > sf.altitude_max or alt < sf.altitude_min:
-            why = f"altitude limit breach at {alt:.1f} m"
-        elif speed > sf.max_speed:
-            why = f"speed limit breach at {speed:.1f} m/s"
+        why = self.supervisor.breach(s, self.origin)
         if why is None:
             return False
         self._abort_land(why)
@@ -534,10 +456,7 @@ class Flight:
         self.reason = why
         self.say(f"{why}: landing")
         if hold_first:
-            if self.link.autopilot == "px4":
-                self.link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_HOLD)
-            else:
-                self.link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
+            self.seq.request_hold(self.link)
         self._land_mode()
 
     def _land_mode(self):
@@ -579,7 +498,7 @@ class Flight:
                 raise FlightError(f"{self.phase}: no answer from the vehicle after 3 tries")
             self._cmd_sent_wall = now
             if self.phase == "mode":
-                self._request_mode()
+                self.seq.request_control(self.link)
             else:
                 self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM,
                                   1 if self.phase == "arming" else 0)
@@ -595,18 +514,17 @@ class Flight:
                 return
         if self.phase == "done" or self._last_sample_wall is None:
             return
-        # time since the last sample, or since we answered it if that took long: a lockstep
-        # vehicle cannot move on before our answer
-        stale = now - max(self._last_sample_wall, self._last_send_wall)
-        if stale <= self.telemetry_timeout:
+        stale = self.supervisor.stale_for(now, self._last_sample_wall, self._last_send_wall)
+        if stale <= 0.0:
             return
         if self.phase in ("mission", "spoolup", "touchdown"):
             # level hover on the last known thrust, then the autopilot's land mode
-            self.say(f"telemetry stale for {stale:.2f} s: level hover, then land")
+            self.say(f"telemetry stale for {stale + self.supervisor.telemetry_timeout:.2f} s: "
+                     "level hover, then land")
             self._send(self.last.t, level_quat(self.yaw), self.hover)
             self._abort_land("telemetry lost")
         elif self.phase == "landing" and now - self._last_sample_wall > max(
-                5.0, 10.0 * self.telemetry_timeout):
+                5.0, 10.0 * self.supervisor.telemetry_timeout):
             self.say("no telemetry since the land command: the vehicle is in its own land mode")
             self.reason = self.reason or "telemetry lost"
             self.phase = "done"
@@ -620,37 +538,14 @@ class Flight:
                 self._hover_wall = now
                 self._send(self.last.t, level_quat(self.yaw), self.hover)
 
-    def _progress(self, t, r, s):
-        now = time.monotonic()
-        if not self.progress or now - self._last_print < 0.2:
-            return
-        self._last_print = now
-        T = self.traj.duration
-        k = min(1.0, t / T) if T > 0 else 1.0
-        bar = "#" * int(30 * k) + "-" * (30 - int(30 * k))
-        err = float(np.linalg.norm(s.pos - r.pos))
-        line = (f"{self._segment_name(t):<18.18} t {t:6.1f}/{T:.0f} s  error {err:6.3f} m  "
-                f"[{bar}]")
-        if self.out.isatty():
-            self.out.write("\r\033[K" + line)
-            self.out.flush()
-        elif now - self._last_line >= 5.0:
-            self._last_line = now
-            self.out.write(line + "\n")
-            self.out.flush()
-
     def _finish(self):
-        if self._row is not None:
-            self._write_row()
-        t = np.asarray(self.rows_t)
-        ref = np.asarray(self.rows_ref).reshape(-1, 3)
-        pos = np.asarray(self.rows_pos).reshape(-1, 3)
+        self.recorder.flush()
         summary = {
             "controller": self.kind,
             "mission": self.m.name,
             "mission_file": self.m.source,
             "autopilot": self.link.autopilot,
-            "duration_s": float(t[-1]) if t.size else 0.0,
+            "duration_s": self.recorder.duration,
             "landed": (not self.link.armed) and self.reason is None,
             "disarmed": not self.link.armed,
             "aborted": self.reason,
@@ -668,10 +563,10 @@ class Flight:
             lat = np.asarray(self.latency) * 1e3
             summary["latency_p50_ms"] = float(np.percentile(lat, 50))
             summary["latency_p99_ms"] = float(np.percentile(lat, 99))
-        summary.update(error_figures(t, ref, pos))
+        summary.update(self.recorder.errors())
         if self.m.settle_s > 0:
-            summary["after_settle"] = error_figures(t, ref, pos, self.m.settle_s)
-        self.rec.write_summary(summary)
+            summary["after_settle"] = self.recorder.errors(self.m.settle_s)
+        self.recorder.rec.write_summary(summary)
         return summary
 
 

@@ -37,6 +37,10 @@ class LinkError(RuntimeError):
     """The link or the vehicle did not do what the flight needs; the message says what."""
 
 
+class FlightError(RuntimeError):
+    """The flight could not start or go on; the message says why, in the vehicle's words."""
+
+
 def parse_url(url):
     """(pymavlink device string, baud) for a connection string in any of the accepted forms."""
     u = url.strip()

@@ -165,3 +165,87 @@ class FlightRecord:
     def close(self):
         self.tlog.close()
         self.table.close()
+
+
+YAW_COLUMN = COLUMNS.index("yaw")  # where the vehicle's yaw sits in a controller.csv row
+#: the parts of a row that come after its position sample: the vehicle's attitude, the truth
+ATTITUDE_PART, TRUTH_PART = 1, 2
+
+
+class Recorder:
+    """What a flight writes as it goes: one controller.csv row per control step, and the
+    reference and position history the error figures are computed from.
+
+    A row's vehicle attitude and true disturbance are those of the same sample: the bundled
+    vehicle sends the position sample first, on its own, and ATTITUDE and the simulator's
+    TRUE_DIST right after, so the row is written when both have come (or, from an autopilot
+    that sends no TRUE_DIST, when the next sample comes)."""
+
+    def __init__(self, record, kind):
+        self.rec = record
+        self.kind = kind
+        self.yaw = 0.0
+        self.true_dist = np.full(3, math.nan)
+        self.t, self.ref, self.pos = [], [], []
+        self._row = None  # the last control step's row, waiting for its attitude and truth
+        self._row_ms = None
+        self._row_have = 0
+
+    def step(self, t, segment, r, s, ctrl, q, thrust):
+        """The row of one control step at mission time ``t`` (reference ``r``, sample ``s``)."""
+        if self._row is not None:
+            self._write_row()
+        z = ctrl.z
+        row = [float(t), segment, *r.pos.tolist(), *r.vel.tolist(), *r.acc.tolist(),
+               float(r.yaw), *s.pos.tolist(), *s.vel.tolist(), math.nan]
+        row += z.ravel().tolist() if self.kind != "pd" else [math.nan] * 9
+        row += ctrl.td.ravel().tolist() if self.kind == "adrc" else [math.nan] * 6
+        row += [*ctrl.accel_command.tolist(), *ctrl.accel_applied.tolist(), *map(float, q),
+                float(thrust), math.nan, math.nan, math.nan]
+        self._row = row
+        self._row_ms = int(round(s.t * 1000.0))
+        self._row_have = 0
+        self.t.append(t)
+        self.ref.append(r.pos)
+        self.pos.append(s.pos)
+
+    def sample_came(self):
+        """A new position sample: the pending row gets whatever of its parts came."""
+        if self._row is not None:
+            self._write_row()
+
+    def attitude(self, time_boot_ms, yaw):
+        self.yaw = yaw
+        self._part(time_boot_ms, ATTITUDE_PART)
+
+    def truth(self, time_boot_ms, dist):
+        self.true_dist = dist
+        self._part(time_boot_ms, TRUTH_PART)
+
+    def _part(self, ms, part):
+        if self._row is not None and ms == self._row_ms:
+            self._row_have |= part
+            if self._row_have == ATTITUDE_PART | TRUTH_PART:
+                self._write_row()
+
+    def _write_row(self):
+        row = self._row
+        self._row = None
+        row[YAW_COLUMN] = float(self.yaw)
+        row[-3:] = self.true_dist.tolist()
+        self.rec.table.row(row)
+
+    def flush(self):
+        if self._row is not None:
+            self._write_row()
+
+    def errors(self, settle_s=0.0):
+        """The error figures of the steps logged so far (:func:`error_figures`)."""
+        t = np.asarray(self.t)
+        ref = np.asarray(self.ref).reshape(-1, 3)
+        pos = np.asarray(self.pos).reshape(-1, 3)
+        return error_figures(t, ref, pos, settle_s)
+
+    @property
+    def duration(self):
+        return float(self.t[-1]) if self.t else 0.0
