@@ -99,9 +99,10 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 oracle, limits, origin, log):
     """Fly the mission steps of ``refs`` (N, 10: pos, vel, acc, yaw) from tick ``tick0``.
 
-    Each step: sample (float32), control, setpoint (float32), ``per`` physics steps.  ``limits``
-    = [north lo, hi, east lo, hi, altitude lo, hi, max speed] relative to ``origin``.  Fills
-    ``log`` row by row; returns (rows written, status).
+    Each step: sample (float32), control over the interval since the last sample (``times``:
+    sample times from the controller's start at t = 0), setpoint (float32), ``per`` physics
+    steps.  ``limits`` = [north lo, hi, east lo, hi, altitude lo, hi, max speed] relative to
+    ``origin``.  Fills ``log`` row by row; returns (rows written, status).
     """
     pos = np.empty(3)
     vel = np.empty(3)
@@ -127,7 +128,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         if oracle:
             for i in range(3):
                 racc[i] -= dist[i]
-        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, refs[j, 9], out)
+        hc = times[j] - (times[j - 1] if j > 0 else 0.0)
+        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, refs[j, 9], out, hc)
         row = log[j]
         row[L_T] = times[j]
         for i in range(3):

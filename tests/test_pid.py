@@ -166,7 +166,7 @@ def closed_loop_matrix(params):
         for k, slot in enumerate(slots):
             s[slot] = x[2 + k]
         y, yd = x[0], x[1]
-        u = K.channel_update(s, params, y, yd, 0.0, 0.0, 0.0)
+        u = K.channel_update(s, params, y, yd, 0.0, 0.0, 0.0, params[K.P_H])
         A[:, j] = [y + H * yd + 0.5 * H * H * u, yd + H * u] + [s[slot] for slot in slots]
     return A
 

@@ -9,3 +9,8 @@ from numba import njit
 
 #: Decorator for scalar/array kernels: compiled once, cached on disk beside the source.
 jit = njit(cache=True, nogil=True)
+
+#: The same for the small hot kernels a step calls on every sample (the nominal-step paths of the
+#: observers, the TD, PID): inlined into their callers in numba's IR, so a control step costs no
+#: call layers (their off-nominal paths live in separate, not inlined, kernels).
+jit_inline = njit(cache=True, nogil=True, inline="always")

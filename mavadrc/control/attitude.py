@@ -23,7 +23,10 @@ W_INIT = 1
 
 @jit
 def attitude_update(S, P, euler, rates, ref, ref_rate, ref_acc, W, tau):
-    """One step of the three attitude channels; writes torques to ``tau``; False on bad input."""
+    """One step of the three attitude channels; writes torques to ``tau``; False on bad input.
+
+    The attitude loop runs at its fixed rate: every step is the nominal step of ``P``.
+    """
     for i in range(3):
         if not (math.isfinite(euler[i]) and math.isfinite(rates[i]) and math.isfinite(ref[i])
                 and math.isfinite(ref_rate[i]) and math.isfinite(ref_acc[i])):
@@ -46,9 +49,12 @@ def attitude_update(S, P, euler, rates, ref, ref_rate, ref_acc, W, tau):
         yaw = W[W_YAW] + G.wrap_pi(euler[2] - W[W_YAW])
     W[W_YAW] = yaw
     yaw_ref = yaw + G.wrap_pi(ref[2] - yaw)
-    tau[0] = K.channel_update(S[0], P[0], phi, phidot, ref[0], ref_rate[0], ref_acc[0])
-    tau[1] = K.channel_update(S[1], P[1], th, thdot, ref[1], ref_rate[1], ref_acc[1])
-    tau[2] = K.channel_update(S[2], P[2], yaw, psidot, yaw_ref, ref_rate[2], ref_acc[2])
+    tau[0] = K.channel_update(S[0], P[0], phi, phidot, ref[0], ref_rate[0], ref_acc[0],
+                              P[0, K.P_H])
+    tau[1] = K.channel_update(S[1], P[1], th, thdot, ref[1], ref_rate[1], ref_acc[1],
+                              P[1, K.P_H])
+    tau[2] = K.channel_update(S[2], P[2], yaw, psidot, yaw_ref, ref_rate[2], ref_acc[2],
+                              P[2, K.P_H])
     return True
 
 

@@ -1,8 +1,10 @@
 """Single-channel controllers: thin Python holders of the state/parameter vectors of ``kernels``.
 
-Every class is explicitly discrete with step ``h`` and uses the notation of the project's ADRC
-notes.  The plant of one channel is taken in canonical form ``y'' = f + b*u`` with only a nominal
-``b0`` known; ``z3`` estimates the total disturbance ``f`` (including ``(b - b0)*u``).
+Every class is explicitly discrete with nominal step ``h`` and uses the notation of the project's
+ADRC notes.  ``update`` takes the real interval since the last sample as an optional ``h``
+(None: the nominal step); see :mod:`mavadrc.control.kernels` for what each law does with it.
+The plant of one channel is taken in canonical form ``y'' = f + b*u`` with only a nominal ``b0``
+known; ``z3`` estimates the total disturbance ``f`` (including ``(b - b0)*u``).
 """
 
 import math
@@ -50,6 +52,14 @@ def nonfinite_error(**values):
                       "state left unchanged")
 
 
+def bad_input(h, **values):
+    """The error for a step the kernel refused: a bad interval ``h``, else non-finite values."""
+    if not (h > 0.0 and math.isfinite(h)):
+        return ValueError(f"the interval h must be a finite number > 0 s (got {h!r}); "
+                          "state left unchanged")
+    return nonfinite_error(**values)
+
+
 def nonfinite_arrays(**values):
     bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
     return ValueError(f"non-finite input in {', '.join(bad)}; state left unchanged")
@@ -73,6 +83,7 @@ def ladrc_params(*, h, b0, wc, wo, u_min=None, u_max=None, discretization="zoh")
     p[K.P_H], p[K.P_B0], p[K.P_UMIN], p[K.P_UMAX] = h, b0, lo, hi
     p[K.P_KP], p[K.P_KD] = wc * wc, 2.0 * wc
     p[K.P_L1], p[K.P_L2], p[K.P_L3] = K.leso_gains(wo, h, discretization)
+    p[K.P_WO] = wo
     p[K.P_OBS] = K.OBS_ZOH if discretization == "zoh" else K.OBS_EULER
     return p
 
@@ -193,6 +204,7 @@ def pid_params(*, h, wc=None, kp_pos=None, kp_vel=None, ki_vel=None, kd_vel=None
     p[K.P_KDV] = _nonneg("kd_vel", g["kd_vel"])
     p[K.P_ILIM] = _nonneg("i_limit", i_limit)
     fc = _nonneg("d_cutoff_hz", d_cutoff_hz)
+    p[K.P_FC] = fc
     p[K.P_DALPHA] = 1.0 if fc == 0.0 else -math.expm1(-2.0 * math.pi * fc * h)
     p[K.P_UMIN], p[K.P_UMAX] = check_limits(u_min, u_max)
     return p
@@ -208,7 +220,7 @@ class TrackingDifferentiator:
     :meth:`reset` says otherwise.
     """
 
-    __slots__ = ("_s", "_p")
+    __slots__ = ("_s", "_p", "_h")
 
     def __init__(self, *, h, r0, h0=None):
         h = check_positive("h", h)
@@ -220,15 +232,19 @@ class TrackingDifferentiator:
         self._p[K.P_R0] = check_positive("r0", r0)
         self._p[K.P_H0] = h0
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     def reset(self, v0=0.0, v0dot=0.0):
         self._s[:] = 0.0
         self._s[K.S_V1] = check_finite("v0", v0)
         self._s[K.S_V2] = check_finite("v0dot", v0dot)
+        self._s[K.S_RPREV] = self._s[K.S_V1]
 
-    def update(self, v):
-        if not K.td_update(self._s, self._p, v):
-            raise nonfinite_error(v=v)
+    def update(self, v, h=None):
+        """One step on reference ``v``; ``h``: the interval since the last one (None: nominal)."""
+        hh = self._h if h is None else float(h)
+        if not K.td_update(self._s, self._p, v, hh):
+            raise bad_input(hh, v=v)
         return self._s[K.S_V1], self._s[K.S_V2]
 
     @property
@@ -243,25 +259,35 @@ def _estimates(self):
 
 
 class _Held:
-    """Holder of a kernel state vector ``_s`` and parameter vector ``_p``."""
+    """Holder of a kernel state vector ``_s``, parameter vector ``_p`` and nominal step ``_h``."""
 
-    __slots__ = ("_s", "_p")
+    __slots__ = ("_s", "_p", "_h")
 
-    def reset(self, y0=None):
-        """Start again: at y0 now (z1 = y0, z2 = z3 = 0), or from the next measurement
-        (anti-peaking initialisation)."""
+    def reset(self, y0=None, ydot0=None):
+        """Start again: at y0 now (z1 = y0, z2 = ydot0 or 0, z3 = 0), or from the next
+        measurement (anti-peaking initialisation)."""
+        if y0 is None and ydot0 is not None:
+            raise ValueError("ydot0 needs y0: a rate estimate starts with a position")
+        y = None if y0 is None else check_finite("y0", y0)
+        rate = 0.0 if ydot0 is None else check_finite("ydot0", ydot0)
         self._s[:] = 0.0
-        if y0 is not None:
-            K.channel_init(self._s, check_finite("y0", y0), 0.0, 0.0)
+        if y is not None:
+            K.channel_start(self._s, self._p, y, rate)
+
+    def hold_disturbance(self):
+        """Zero the disturbance estimate z3 (PID: the integrator), e.g. while on the ground."""
+        K.hold_disturbance(self._s)
 
 
 class _Observer(_Held):
     __slots__ = ()
 
-    def update(self, y, u):
-        """Correct with measurement ``y``; ``u`` is the input applied over the last step."""
-        if not K.observer_update(self._s, self._p, y, u):
-            raise nonfinite_error(y=y, u=u)
+    def update(self, y, u, h=None):
+        """Correct with measurement ``y``; ``u`` is the input applied since the last one, ``h``
+        the interval since it (None: the nominal step)."""
+        hh = self._h if h is None else float(h)
+        if not K.observer_update(self._s, self._p, y, u, hh):
+            raise bad_input(hh, y=y, u=u)
         return self._s[K.S_Z1], self._s[K.S_Z2], self._s[K.S_Z3]
 
     z = property(_estimates)
@@ -282,6 +308,7 @@ class HanESO(_Observer):
     def __init__(self, *, h, b0, beta=None, eso_gains="han", delta=None):
         self._p = han_params(h=h, b0=b0, beta=beta, eso_gains=eso_gains, delta=delta)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
 
 class LinearESO(_Observer):
@@ -297,6 +324,7 @@ class LinearESO(_Observer):
     def __init__(self, *, h, b0, wo, discretization="zoh"):
         self._p = ladrc_params(h=h, b0=b0, wc=1.0, wo=wo, discretization=discretization)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     @property
     def gains(self):
@@ -307,11 +335,15 @@ class LinearESO(_Observer):
 class _Channel(_Held):
     __slots__ = ()
 
-    def update(self, y, r, rdot=0.0, rddot=0.0):
-        """One step: measurement y, reference r with its derivatives; returns the limited u."""
-        u = K.channel_update(self._s, self._p, y, _NAN, r, rdot, rddot)
+    def update(self, y, r, rdot=0.0, rddot=0.0, h=None):
+        """One step: measurement y, reference r with its derivatives, ``h`` the interval since
+        the last step's sample (None: the nominal step); returns the limited u."""
+        if h is None:
+            u = K.channel_update_nominal(self._s, self._p, y, _NAN, r, rdot, rddot)
+        else:
+            u = K.channel_update(self._s, self._p, y, _NAN, r, rdot, rddot, float(h))
         if u != u:
-            raise nonfinite_error(y=y, r=r, rdot=rdot, rddot=rddot)
+            raise bad_input(self._h if h is None else float(h), y=y, r=r, rdot=rdot, rddot=rddot)
         return u
 
     def set_applied_input(self, u):
@@ -363,6 +395,7 @@ class LinearADRC(_ObservedChannel):
         self._p = ladrc_params(h=h, b0=b0, wc=wc, wo=wo, u_min=u_min, u_max=u_max,
                                discretization=discretization)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     @property
     def kp(self):
@@ -394,6 +427,7 @@ class HanADRC(_ObservedChannel):
                              eso_gains=eso_gains, delta=delta, td=td, law=law, k1=k1, k2=k2, a1=a1,
                              a2=a2, delta_law=delta_law, u_min=u_min, u_max=u_max)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     @property
     def v(self):
@@ -415,22 +449,28 @@ class PD(_Channel):
     def __init__(self, *, h, kp, kd, b0=1.0, u_min=None, u_max=None):
         self._p = pd_params(h=h, kp=kp, kd=kd, b0=b0, u_min=u_min, u_max=u_max)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     @classmethod
     def from_bandwidth(cls, *, h, wc, b0=1.0, u_min=None, u_max=None):
         wc = check_positive("wc", wc)
         return cls(h=h, kp=wc * wc, kd=2.0 * wc, b0=b0, u_min=u_min, u_max=u_max)
 
-    def update(self, y, r, rdot=0.0, rddot=0.0, ydot=None):
+    def update(self, y, r, rdot=0.0, rddot=0.0, ydot=None, h=None):
+        """One step: measurement y (and its rate ``ydot`` where measured), reference r with its
+        derivatives, ``h`` the interval since the last step's sample (None: the nominal step)."""
         if ydot is None:
             rate = _NAN
         elif math.isfinite(ydot):
             rate = ydot
         else:
             raise nonfinite_error(ydot=ydot)
-        u = K.channel_update(self._s, self._p, y, rate, r, rdot, rddot)
+        if h is None:
+            u = K.channel_update_nominal(self._s, self._p, y, rate, r, rdot, rddot)
+        else:
+            u = K.channel_update(self._s, self._p, y, rate, r, rdot, rddot, float(h))
         if u != u:
-            raise nonfinite_error(y=y, r=r, rdot=rdot, rddot=rddot)
+            raise bad_input(self._h if h is None else float(h), y=y, r=r, rdot=rdot, rddot=rddot)
         return u
 
     @property
@@ -470,6 +510,7 @@ class PID(_Channel):
                              kd_vel=kd_vel, i_limit=i_limit, d_cutoff_hz=d_cutoff_hz, b0=b0,
                              u_min=u_min, u_max=u_max)
         self._s = K.new_state()
+        self._h = float(self._p[K.P_H])
 
     update = PD.update
 

@@ -13,6 +13,21 @@ integrates ``z3 - l2*(z1 - y) + b0*u``; PD and LADRC use ``z2 - rdot`` for the r
 PID is PX4's cascade (position P -> velocity PID with conditional integration, see
 :func:`pid_step`).
 
+Every step takes the real interval ``h`` since the sample the previous step was computed from
+(``P_H`` is the nominal step the gains were designed for).  With ``h == P_H`` every law is exactly
+the fixed-step recursion; an interval within :data:`H_SNAP` (relative) of ``P_H`` counts as
+``P_H``, so sample times carried as float seconds (or milliseconds) do not perturb a nominal run.
+Otherwise (see :func:`leso_step`, :func:`nleso_step`, :func:`td_step`, :func:`pid_step`):
+
+* ZOH LESO: predict with the exact Phi(h), Gamma(h) and correct with Lc(h) from ``wo``: the
+  discrete poles sit at exp(-wo h) for every h.
+* Euler-type observers (Han's NLESO, the Euler LESO), whose gains only suit the nominal step:
+  re-align the estimate to the sample time by exact open-loop prediction with the applied input,
+  then one correcting step whose rate and disturbance channels see the innovation per nominal
+  step (:func:`_realign`).  A gap neither destabilises them nor makes their estimates jump.
+* TD: sub-steps of at most the nominal step over the interval, the reference interpolated.
+* PD / PID: differences, integral and the D low-pass with the real h.
+
 Observers are always fed the input that was *applied* over the last step (after limits), which is
 what ``S_U`` holds.  A caller that limits the command further (tilt limits, a mixer) overwrites
 ``S_U`` with what it really applied; the PID kind compares it with its own command to stop its
@@ -23,7 +38,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit
+from ._jit import jit, jit_inline
 
 # --- channel kinds -------------------------------------------------------------------------------
 KIND_PD = 0
@@ -45,7 +60,8 @@ S_FH = 9  # TD: acceleration of the tracked reference
 S_I = 10  # PID: velocity integrator times ki_vel (acceleration units, |S_I| <= i_limit)
 S_VPREV = 11  # PID: previous rate (for the D term)
 S_DF = 12  # PID: low-pass filtered derivative of the measured rate (the D term's input)
-NS = 13
+S_RPREV = 13  # TD: the reference of the last step (interpolated over long intervals)
+NS = 14
 
 # --- parameter vector layout ---------------------------------------------------------------------
 P_KIND = 0
@@ -81,7 +97,14 @@ P_KIV = 29  # PID: velocity I gain ki_vel (1/s^2)
 P_KDV = 30  # PID: velocity D gain kd_vel (dimensionless; 0: no D term)
 P_DALPHA = 31  # PID: low-pass factor per step of the D term (1 - exp(-2 pi fc h); 1: unfiltered)
 P_ILIM = 32  # PID: integrator authority limit i_limit (acceleration units)
-NP = 33
+P_WO = 33  # LESO bandwidth wo (rad/s): the ZOH observer's Lc(h) for steps other than P_H
+P_FC = 34  # PID: D-term low-pass cutoff (Hz; 0: unfiltered), for steps other than P_H
+NP = 35
+
+#: An interval within this fraction of the nominal step is the nominal step.
+H_SNAP = 1e-6
+#: At most this many TD sub-steps per interval (beyond, they grow past the nominal step).
+TD_MAX_SUBSTEPS = 1000
 
 OBS_ZOH = 0.0
 OBS_EULER = 1.0
@@ -126,19 +149,111 @@ def fal(e, alpha, delta):
 
 
 @jit
-def td_step(s, p, v):
-    """One step of the tracking differentiator on reference ``v``: updates S_V1, S_V2, S_FH."""
-    h = p[P_H]
+def real_step(p, h):
+    """The step a kernel uses for the interval ``h``: ``P_H`` when h is within H_SNAP of it
+    (timestamp rounding), else h; NaN if h is not a finite number > 0."""
+    hn = p[P_H]
+    if not (h > 0.0 and h < math.inf):
+        return math.nan
+    if abs(h - hn) <= H_SNAP * hn:
+        return hn
+    return h
+
+
+@jit_inline
+def td_step(s, p, v, h):
+    """The tracking differentiator on reference ``v`` over the interval h: updates S_V1, S_V2, S_FH.
+
+    At the nominal step one recursion step; otherwise :func:`_td_interval`.
+    """
+    if h != p[P_H]:
+        _td_interval(s, p, v, h)
+        return
     fh = fhan(s[S_V1] - v, s[S_V2], p[P_R0], p[P_H0])
     s[S_V1] += h * s[S_V2]
     s[S_V2] += h * fh
     s[S_FH] = fh
+    s[S_RPREV] = v
 
 
 @jit
-def nleso_step(s, p, y):
-    """Han's nonlinear ESO, forward-Euler recursion, fed the applied input S_U of the last step."""
-    h = p[P_H]
+def _td_interval(s, p, v, h):
+    """The TD over an interval h other than the nominal step hn: ``n = ceil(h/hn)`` sub-steps of
+    h/n (at most TD_MAX_SUBSTEPS; the filter factor kept >= the sub-step), the reference
+    interpolated from the last step's to ``v``, so a gap in the samples of a moving reference is
+    not a step."""
+    hn = p[P_H]
+    n = 1
+    if h > hn:
+        n = min(int(math.ceil(h / hn - H_SNAP)), TD_MAX_SUBSTEPS)
+    hs = h / n
+    h0 = max(p[P_H0], hs)
+    v0 = s[S_RPREV]
+    if not math.isfinite(v0):
+        v0 = v
+    fh = 0.0
+    for j in range(1, n + 1):
+        vj = v if j == n else v0 + (v - v0) * (j / n)
+        fh = fhan(s[S_V1] - vj, s[S_V2], p[P_R0], h0)
+        s[S_V1] += hs * s[S_V2]
+        s[S_V2] += hs * fh
+    s[S_FH] = fh
+    s[S_RPREV] = v
+
+
+@jit
+def _realign(s, p, h, b0u):
+    """Euler-type observers (Han's NLESO, the Euler LESO) at an interval h other than the nominal.
+
+    Their recursion ``z(k) = z(k-1) + hn*(f(z) + correction(z1 - y(k)))`` keeps z one nominal step
+    ahead of the last sample, and their gains are tuned to the nominal step hn (Han's NLESO is
+    unstable once h*beta01 > ~2).  Before the correcting step the estimate is moved from
+    ``t(k-1) + hn`` to the sample time ``t(k-1) + h`` by open-loop prediction with the applied
+    input (a = z3 + b0 u, constant over the interval), D = h - hn::
+
+        h > hn:  z1 += D z2 + D^2/2 a,        z2 += D a     (exact)
+        h < hn:  z1 += D z2 + D (D - hn)/2 a, z2 += D a     (counted from the last sample: the
+                                                             exact prediction less h*hn/2*a, the
+                                                             Euler step's own term, which
+                                                             vanishes with h)
+
+    The caller then does one correcting step ``z += hn*f(z) - m*gain_j*g_j(s_j*e)`` with
+    (m, s2, s3) returned here.  Below the nominal step m = h, s = 1: corrections in proportion to
+    the time elapsed, so a burst of samples does not multiply them.  Above it m = hn and the rate
+    and disturbance channels see the innovation per nominal step, s2 = hn/h and
+    s3 = hn/h*min(1, 3 hn/h): an error of z2 or z3 grows the innovation like h or h^2, and
+    treating it as if it had built up in one nominal step would over-correct by as much (the
+    NLESO's per-sample poles leave the unit circle from ~5 hn steadily, and a gap kicks z3).  With
+    this the NLESO's per-sample poles stay inside its nominal radius at any longer interval (the
+    Euler LESO's inside 0.95 at wo*hn = 0.2); the (hn/h)^2 share from three nominal steps on is
+    what keeps them there at long intervals, the hn/h share below keeps a jittering stream from
+    stirring z3 with measurement noise.  Across a gap the prediction carries the estimate: with a
+    right model the innovation, and the estimates, stay where they were; a wrong one is corrected
+    at the nominal pace.
+    """
+    hn = p[P_H]
+    d = h - hn
+    a = s[S_Z3] + b0u
+    if d < 0.0:
+        s[S_Z1] += d * s[S_Z2] + 0.5 * d * (d - hn) * a
+        s[S_Z2] += d * a
+        return h, 1.0, 1.0
+    s[S_Z1] += d * s[S_Z2] + 0.5 * d * d * a
+    s[S_Z2] += d * a
+    r = hn / h
+    return hn, r, r * min(1.0, 3.0 * r)
+
+
+@jit_inline
+def nleso_step(s, p, y, h):
+    """Han's nonlinear ESO, forward-Euler recursion, fed the applied input S_U of the last step.
+
+    ``h``: the interval since the last sample (:func:`_nleso_interval` when it is not the
+    nominal step).
+    """
+    if h != p[P_H]:
+        _nleso_interval(s, p, y, h)
+        return
     delta = p[P_DELTA]
     z1 = s[S_Z1]
     z2 = s[S_Z2]
@@ -150,14 +265,35 @@ def nleso_step(s, p, y):
 
 
 @jit
-def leso_step(s, p, y):
-    """Linear ESO fed the applied input S_U of the last step.
+def _nleso_interval(s, p, y, h):
+    """The NLESO over an interval h other than the nominal step: :func:`_realign`, then one
+    correcting step."""
+    hn = p[P_H]
+    delta = p[P_DELTA]
+    b0u = p[P_B0] * s[S_U]
+    m, s2, s3 = _realign(s, p, h, b0u)
+    z1 = s[S_Z1]
+    z2 = s[S_Z2]
+    z3 = s[S_Z3]
+    e = z1 - y
+    s[S_Z1] = z1 + hn * z2 - m * p[P_B01] * e
+    s[S_Z2] = z2 + hn * (z3 + b0u) - m * p[P_B02] * fal(s2 * e, 0.5, delta)
+    s[S_Z3] = z3 - m * p[P_B03] * fal(s3 * e, 0.25, delta)
+
+
+@jit_inline
+def leso_step(s, p, y, h):
+    """Linear ESO fed the applied input S_U of the last step, over the interval h.
 
     ZOH current observer (default): predict with the exact discretisation of the triple
-    integrator, then correct with the new measurement; the poles lie at exp(-wo*h).  Euler: the
-    forward-Euler recursion of the continuous observer (poles at 1 - wo*h).
+    integrator over h, then correct with the new measurement with Lc(h) from wo (the stored Lc at
+    the nominal step); the poles lie at exp(-wo*h) for every h.  Euler: the forward-Euler
+    recursion of the continuous observer (poles at 1 - wo*h), re-aligned as in :func:`_realign`
+    when h is not the nominal step.
     """
-    h = p[P_H]
+    if h != p[P_H]:
+        _leso_interval(s, p, y, h)
+        return
     b0u = p[P_B0] * s[S_U]
     z1 = s[S_Z1]
     z2 = s[S_Z2]
@@ -177,6 +313,35 @@ def leso_step(s, p, y):
 
 
 @jit
+def _leso_interval(s, p, y, h):
+    """The LESO over an interval h other than the nominal step: ZOH with Lc(h) from wo, or the
+    Euler recursion re-aligned (:func:`_realign`) with one correcting step."""
+    hn = p[P_H]
+    b0u = p[P_B0] * s[S_U]
+    if p[P_OBS] == OBS_ZOH:
+        beta = math.exp(-p[P_WO] * h)
+        omb = -math.expm1(-p[P_WO] * h)
+        z1 = s[S_Z1]
+        z2 = s[S_Z2]
+        z3 = s[S_Z3]
+        zp1 = z1 + h * z2 + 0.5 * h * h * (z3 + b0u)
+        zp2 = z2 + h * (z3 + b0u)
+        e = y - zp1
+        s[S_Z1] = zp1 + (1.0 - beta * beta * beta) * e
+        s[S_Z2] = zp2 + 1.5 * omb * omb * (1.0 + beta) / h * e
+        s[S_Z3] = z3 + omb * omb * omb / (h * h) * e
+        return
+    m, s2, s3 = _realign(s, p, h, b0u)
+    z1 = s[S_Z1]
+    z2 = s[S_Z2]
+    z3 = s[S_Z3]
+    e = y - z1
+    s[S_Z1] = z1 + hn * z2 + m * p[P_L1] * e
+    s[S_Z2] = z2 + hn * (z3 + b0u) + m * p[P_L2] * s2 * e
+    s[S_Z3] = z3 + m * p[P_L3] * s3 * e
+
+
+@jit
 def _clip(u, lo, hi):
     if u > hi:
         return hi
@@ -190,7 +355,8 @@ def channel_init(s, y, r, rdot):
     """Anti-peaking start: observer at the first measurement, TD at the measurement too.
 
     Starting the TD at y (not at r) lets the classical ADRC arrange the transient from where the
-    plant is to the reference, as the TD is meant to.
+    plant is to the reference, as the TD is meant to.  ``r`` is taken as the last reference (the
+    TD interpolates from it over a long first interval).
     """
     s[S_Z1] = y
     s[S_Z2] = 0.0
@@ -204,11 +370,46 @@ def channel_init(s, y, r, rdot):
     s[S_I] = 0.0
     s[S_VPREV] = 0.0
     s[S_DF] = 0.0
+    s[S_RPREV] = r
     s[S_INIT] = 1.0
 
 
 @jit
-def pid_step(s, p, y, ydot, r, rdot, rddot):
+def channel_start(s, p, y, ydot):
+    """Start a channel now at measurement y moving at ``ydot`` (to take over a vehicle in
+    flight): :func:`channel_init` at y, then the rate estimate z2 and the TD's v2 at ydot (a NaN
+    ydot: 0, as channel_init).  The Euler-type observers (Han's NLESO, the Euler LESO) keep z1 one
+    nominal step ahead of the last sample, so theirs starts at y + h*ydot."""
+    channel_init(s, y, y, 0.0)
+    if math.isfinite(ydot) and ydot != 0.0:
+        s[S_Z2] = ydot
+        s[S_V2] = ydot
+        if p[P_KIND] == KIND_HAN or (p[P_KIND] == KIND_LADRC and p[P_OBS] == OBS_EULER):
+            s[S_Z1] = y + p[P_H] * ydot
+
+
+@jit
+def hold_disturbance(s):
+    """Zero the disturbance estimate z3 and the PID integrator (and its read-out).
+
+    Call it after each step while the vehicle rests on the ground: the ground's reaction is not
+    a disturbance the observers or the integrator should learn and carry into the take-off.
+    """
+    s[S_Z3] = 0.0
+    s[S_I] = 0.0
+
+
+@jit
+def _d_alpha(p, h):
+    """The PID D-term low-pass factor over an interval h: 1 - exp(-2 pi fc h) (fc = 0: 1)."""
+    fc = p[P_FC]
+    if fc > 0.0:
+        return -math.expm1(-2.0 * math.pi * fc * h)
+    return 1.0
+
+
+@jit_inline
+def pid_step(s, p, y, ydot, r, rdot, rddot, h):
     """PX4-style cascade on one axis; returns the virtual control u0 (before 1/b0 and limits).
 
     ::
@@ -219,11 +420,13 @@ def pid_step(s, p, y, ydot, r, rdot, rddot):
         D    = low-pass(d ydot / dt)                (D on the measurement; skipped if kd_vel = 0)
         u0   = rddot + kp_vel e_v + I - kd_vel D
 
+    ``h``: the interval since the last sample; differences and the integral use it, and the D
+    low-pass factor is 1 - exp(-2 pi fc h) (the stored factor at the nominal step).
+
     Conditional integration: if the command of the last step (S_U0/b0) and what was really
     applied (S_U, which a caller may overwrite after tilt/thrust limits) differ by more than
     1e-6 and e_v would push the command further the same way, I is held.
     """
-    h = p[P_H]
     if math.isfinite(ydot):
         rate = ydot
     else:
@@ -241,7 +444,8 @@ def pid_step(s, p, y, ydot, r, rdot, rddot):
         if s[S_INIT] < 2.0:  # first step: no previous rate, no derivative kick
             s[S_VPREV] = rate
             s[S_INIT] = 2.0
-        s[S_DF] += p[P_DALPHA] * ((rate - s[S_VPREV]) / h - s[S_DF])
+        alpha = p[P_DALPHA] if h == p[P_H] else _d_alpha(p, h)
+        s[S_DF] += alpha * ((rate - s[S_VPREV]) / h - s[S_DF])
         s[S_VPREV] = rate
         u0 -= kd * s[S_DF]
     s[S_Z1] = y  # read-outs in the observer slots: what the law used, and the integrator's
@@ -250,28 +454,27 @@ def pid_step(s, p, y, ydot, r, rdot, rddot):
     return u0
 
 
-@jit
-def channel_update(s, p, y, ydot, r, rdot, rddot):
-    """One control step of a channel of any kind; returns the limited command u.
-
-    ``ydot`` is a measured rate, used by PD and PID only (NaN: they differentiate y).  Non-finite
-    y, r, rdot or rddot leave the state untouched and return NaN, so a bad sample never enters
-    the observer; the caller turns that into an error.
-    """
+@jit_inline
+def _channel_step(s, p, y, ydot, r, rdot, rddot, h):
+    """The body of :func:`channel_update` (inlined into its entries)."""
     if not (math.isfinite(y) and math.isfinite(r) and math.isfinite(rdot) and math.isfinite(rddot)):
         return math.nan
+    if h != p[P_H]:
+        h = real_step(p, h)
+        if h != h:
+            return math.nan
     if s[S_INIT] == 0.0:
         channel_init(s, y, r, rdot)
     kind = p[P_KIND]
     b0 = p[P_B0]
     if kind == KIND_LADRC:
-        leso_step(s, p, y)
+        leso_step(s, p, y, h)
         u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_HAN:
-        nleso_step(s, p, y)
+        nleso_step(s, p, y, h)
         if p[P_TD] != 0.0:
-            td_step(s, p, r)
+            td_step(s, p, r, h)
         else:
             s[S_V1] = r
             s[S_V2] = rdot
@@ -283,13 +486,13 @@ def channel_update(s, p, y, ydot, r, rdot, rddot):
             u0 = p[P_K1] * fal(e1, p[P_A1], p[P_DL]) + p[P_K2] * fal(e2, p[P_A2], p[P_DL]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_PID:
-        u0 = pid_step(s, p, y, ydot, r, rdot, rddot)
+        u0 = pid_step(s, p, y, ydot, r, rdot, rddot, h)
         u = u0 / b0
     else:
         if math.isfinite(ydot):
             rate = ydot
         else:
-            rate = (y - s[S_YPREV]) / p[P_H]
+            rate = (y - s[S_YPREV]) / h
         s[S_YPREV] = y
         u0 = p[P_KP] * (r - y) + p[P_KD] * (rdot - rate) + rddot
         u = u0 / b0
@@ -297,6 +500,26 @@ def channel_update(s, p, y, ydot, r, rdot, rddot):
     u = _clip(u, p[P_UMIN], p[P_UMAX])
     s[S_U] = u
     return u
+
+
+@jit
+def channel_update(s, p, y, ydot, r, rdot, rddot, h):
+    """One control step of a channel of any kind; returns the limited command u.
+
+    ``h`` is the real interval since the sample of the previous step (``p[P_H]``: the nominal
+    step; see :func:`real_step`).  ``ydot`` is a measured rate, used by PD and PID only (NaN: they
+    differentiate y).  Non-finite y, r, rdot or rddot, or an h that is not a finite number > 0,
+    leave the state untouched and return NaN, so a bad sample never enters the observer; the
+    caller turns that into an error.
+    """
+    return _channel_step(s, p, y, ydot, r, rdot, rddot, h)
+
+
+@jit
+def channel_update_nominal(s, p, y, ydot, r, rdot, rddot):
+    """:func:`channel_update` at the nominal step ``p[P_H]``: the fixed-rate entry for callers
+    in Python (one argument fewer to pass through numba's dispatcher)."""
+    return _channel_step(s, p, y, ydot, r, rdot, rddot, p[P_H])
 
 
 # --- parameter construction (plain Python, run once) ---------------------------------------------
@@ -341,27 +564,35 @@ def new_state():
 
 
 @jit
-def observer_update(s, p, y, u):
-    """Advance a standalone ESO (LADRC or HAN kind) with measurement y and applied input u.
+def observer_update(s, p, y, u, h):
+    """Advance a standalone ESO (LADRC or HAN kind) with measurement y and applied input u over
+    the interval h.
 
-    Returns False (state untouched) for a non-finite y or u.
+    Returns False (state untouched) for a non-finite y or u, or an h that is not finite and > 0.
     """
     if not (math.isfinite(y) and math.isfinite(u)):
+        return False
+    h = real_step(p, h)
+    if h != h:
         return False
     if s[S_INIT] == 0.0:
         channel_init(s, y, y, 0.0)
     s[S_U] = u
     if p[P_KIND] == KIND_HAN:
-        nleso_step(s, p, y)
+        nleso_step(s, p, y, h)
     else:
-        leso_step(s, p, y)
+        leso_step(s, p, y, h)
     return True
 
 
 @jit
-def td_update(s, p, v):
-    """Advance a standalone TD; returns False (state untouched) for a non-finite v."""
+def td_update(s, p, v, h):
+    """Advance a standalone TD over the interval h; returns False (state untouched) for a
+    non-finite v or an h that is not finite and > 0."""
     if not math.isfinite(v):
         return False
-    td_step(s, p, v)
+    h = real_step(p, h)
+    if h != h:
+        return False
+    td_step(s, p, v, h)
     return True

@@ -18,16 +18,29 @@ from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params, pid
 
 AXES = ("x", "y", "z")
 
+# the observers' input model, one row per axis (see ``input_lag``)
+IN_ALPHA = 0  # 1 - exp(-h/tau) at the nominal step (1: no lag)
+IN_STATE = 1  # the lag's output: the acceleration the observer is fed
+IN_TAU = 2  # the lag's time constant (s; 0: none)
+IN_DIFF = 3  # last command minus the lag's output before it (to redo the last advance)
+NIN = 4
+
 
 @jit
-def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out):
+def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h):
     """One step of the three position channels and the attitude map; False on non-finite input.
 
-    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters, IN: (3, 2)
-    the observers' input model per axis, [alpha, state] (see ``input_lag``).  ``vel`` is
-    the measured velocity (used by PD and PID channels; NaN entries make them differentiate).
+    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters, IN: (3, NIN)
+    the observers' input model per axis (IN_* columns; see ``input_lag``).  ``vel`` is the
+    measured velocity (used by PD and PID channels; NaN entries make them differentiate).
     ``out``: the layout of :func:`geometry.accel_to_attitude` followed by the three raw
-    commands.
+    commands.  ``h``: the interval since the sample of the last step (P[:, P_H] is nominal).
+
+    The input model is the first-order lag ``u_obs += alpha (u_applied - u_obs)``, alpha = 1 -
+    exp(-h/tau), exact for a command held over the interval.  Each step advances it by the
+    nominal step (the next interval is not known yet) and the next step, once it knows the
+    interval, redoes that advance with its alpha: the observer then predicts with the input the
+    vehicle really received, across a gap too.
     """
     for i in range(3):
         if not (math.isfinite(pos[i]) and math.isfinite(rpos[i]) and math.isfinite(rvel[i])
@@ -35,19 +48,49 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out):
             return False
     if not math.isfinite(yaw):
         return False
-    a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0])
-    a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1])
-    a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2])
+    hh = K.real_step(P[0], h)
+    if hh != hh:
+        return False
+    if hh != P[0, K.P_H]:
+        for i in range(3):
+            tau = IN[i, IN_TAU]
+            if tau > 0.0:
+                da = (-math.expm1(-hh / tau) - IN[i, IN_ALPHA]) * IN[i, IN_DIFF]
+                IN[i, IN_STATE] += da
+                S[i, K.S_U] += da
+    a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh)
+    a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh)
+    a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh)
     G.accel_to_attitude(a0, a1, a2, yaw, M, out)
     for i in range(3):
         # the observers' input: the limited command through the input model (a first-order
         # lag standing for the vehicle's attitude and motor response; alpha 1 = none)
-        IN[i, 1] += IN[i, 0] * (out[G.O_ACC + i] - IN[i, 1])
-        S[i, K.S_U] = IN[i, 1]
+        diff = out[G.O_ACC + i] - IN[i, IN_STATE]
+        IN[i, IN_DIFF] = diff
+        IN[i, IN_STATE] += IN[i, IN_ALPHA] * diff
+        S[i, K.S_U] = IN[i, IN_STATE]
     out[G.NO] = a0
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
     return True
+
+
+@jit
+def position_start(S, P, IN, pos, vel):
+    """Start the three channels now at ``pos`` (and rate estimates at ``vel``; NaN entries: 0),
+    with the input model at rest (see :func:`kernels.channel_start`)."""
+    for i in range(3):
+        IN[i, IN_STATE] = 0.0
+        IN[i, IN_DIFF] = 0.0
+        S[i, :] = 0.0
+        K.channel_start(S[i], P[i], pos[i], vel[i])
+
+
+@jit
+def position_hold_disturbance(S):
+    """:func:`kernels.hold_disturbance` on the three channels (while on the ground)."""
+    for i in range(3):
+        K.hold_disturbance(S[i])
 
 
 def _axis(value, i, name):
@@ -100,8 +143,8 @@ class PositionController:
                  **gains):
         self.kind = kind
         lag = gains.pop("input_lag", None)
-        self._IN = np.zeros((3, 2))
-        self._IN[:, 0] = 1.0
+        self._IN = np.zeros((3, NIN))
+        self._IN[:, IN_ALPHA] = 1.0
         if lag is not None:
             if kind not in ("ladrc", "adrc"):
                 raise ValueError("input_lag models the observers' input: it applies to the "
@@ -110,8 +153,10 @@ class PositionController:
                 tau = float(_axis(lag, i, "input_lag"))
                 if not (math.isfinite(tau) and tau >= 0.0):
                     raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
-                self._IN[i, 0] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
+                self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
+                self._IN[i, IN_TAU] = tau
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
+        self._h = float(self._P[0, K.P_H])
         self._S = np.zeros((3, K.NS))
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
                                    tilt_max=tilt_max, thrust_min=thrust_min,
@@ -120,27 +165,54 @@ class PositionController:
         self._nan3 = np.full(3, math.nan)
         self._zero3 = np.zeros(3)
 
-    def reset(self, pos=None):
-        """Start again, at ``pos`` now or from the next measurement."""
-        self._S[:] = 0.0
-        self._IN[:, 1] = 0.0
-        if pos is not None:
-            for i in range(3):
-                K.channel_init(self._S[i], float(pos[i]), 0.0, 0.0)
+    def reset(self, pos=None, vel=None):
+        """Start again: at ``pos`` now, or from the next measurement.
 
-    def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0):
+        ``vel``: the measured velocity, to take over a vehicle already moving: the rate
+        estimates (z2; classical ADRC: also the TD's v2) start there instead of at 0 (and the
+        Euler-type observers' z1 one nominal step ahead, as they keep it).
+        """
+        if pos is not None:
+            p = np.array(pos, dtype=np.float64).reshape(3)
+            v = np.zeros(3) if vel is None else np.array(vel, dtype=np.float64).reshape(3)
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
+                raise nonfinite_arrays(pos=p, vel=v)
+            position_start(self._S, self._P, self._IN, p, v)
+        elif vel is not None:
+            raise ValueError("reset(vel=...) needs pos: the estimates start at a measured "
+                             "position")
+        else:
+            self._S[:] = 0.0
+            self._IN[:, IN_STATE] = 0.0
+            self._IN[:, IN_DIFF] = 0.0
+
+    def hold_disturbance(self):
+        """Zero every axis's disturbance estimate z3 (PID: the integrator).
+
+        Call it after each :meth:`update` while the vehicle rests on the ground, so the
+        observers do not learn the ground's reaction and carry it into the take-off.
+        """
+        position_hold_disturbance(self._S)
+
+    def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0, dt=None):
         """One step: returns (q [w, x, y, z], normalized thrust).
 
         ``pos``/``vel``: measured NED position and velocity (``vel`` may be None for ADRC kinds;
         PD and PID then differentiate).  ``ref_*``: reference and its derivatives (None: zero).
+        ``dt``: the interval (s) since the sample of the last step, from the vehicle's
+        timestamps (None: the nominal step ``h``); it must be a finite number > 0.
         """
         pos = np.asarray(pos, dtype=np.float64)
         vel = self._nan3 if vel is None else np.asarray(vel, dtype=np.float64)
         rp = pos if ref_pos is None else np.asarray(ref_pos, dtype=np.float64)
         rv = self._zero3 if ref_vel is None else np.asarray(ref_vel, dtype=np.float64)
         ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
+        h = self._h if dt is None else float(dt)
         if not position_update(self._S, self._P, self._M, self._IN, pos, vel, rp, rv, ra,
-                               float(yaw), self._out):
+                               float(yaw), self._out, h):
+            if not (h > 0.0 and math.isfinite(h)):
+                raise ValueError(f"dt must be a finite interval > 0 s (got {dt!r}); state left "
+                                 "unchanged")
             raise nonfinite_arrays(pos=pos, ref_pos=rp, ref_vel=rv, ref_acc=ra, yaw=yaw)
         return self._out[G.O_Q:G.O_Q + 4].copy(), float(self._out[G.O_THRUST])
 
