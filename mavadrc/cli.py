@@ -72,7 +72,18 @@ def build_parser():
     f.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
     f.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
     f.add_argument("--timeout", type=float, default=None,
-                   help="give up (and land) after this many wall-clock seconds")
+                   help="wall-clock seconds for the whole flight, every phase included: past "
+                        "them the vehicle is landed, and the landing itself is bounded")
+    f.add_argument("--takeover", action="store_true",
+                   help="fly a vehicle that is already armed, in the air or in OFFBOARD/GUIDED "
+                        "(another controller's), from where it is; without it such a vehicle is "
+                        "refused and nothing is sent that changes its mode, arming or thrust")
+    f.add_argument("--sysid", type=int, default=None,
+                   help="fly the autopilot with this system id (default: the first heard)")
+    f.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing: the 32-byte secret as 64 hex characters; "
+                        "everything sent is signed and everything received must be (the bundled "
+                        "vehicle is started with the same key)")
     f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     f.set_defaults(func=_fly)
     c = sub.add_parser("compare", help="run an experiment (scenarios x controllers x seeds) and "

@@ -28,15 +28,18 @@ class Console:
         """A message in the vehicle's own words (STATUSTEXT, a command's answer)."""
         self.say(f"  vehicle: {text}")
 
-    def progress(self, segment, t, duration, error):
-        """The live line: segment, mission time, current 3-D error; at most 5 per second."""
+    def progress(self, segment, t, duration, error, link=None):
+        """The live line: segment, mission time, current 3-D error and the link's state
+        (``link()`` gives its text); at most 5 per second."""
         now = time.monotonic()
         if not self.progress_on or now - self._last_print < 0.2:
             return
         self._last_print = now
         k = min(1.0, t / duration) if duration > 0 else 1.0
-        bar = "#" * int(30 * k) + "-" * (30 - int(30 * k))
+        bar = "#" * int(20 * k) + "-" * (20 - int(20 * k))
         line = f"{segment:<18.18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m  [{bar}]"
+        if link is not None:
+            line += f"  {link()}"
         if self._tty:
             self.out.write("\r\033[K" + line)
             self.out.flush()

@@ -49,7 +49,7 @@ class EmbeddedVehicle:
     """
 
     def __init__(self, mission, *, lockstep=False, rate_hz=100.0, workdir=None, seed=None,
-                 wind=None, log_path=None, start="auto"):
+                 wind=None, log_path=None, start="auto", signing_key=None, params=None):
         port = free_udp_port()
         cmd = [sys.executable, "-m", "sim", "--vehicle", mission.vehicle or "crazyflie",
                "--seed", str(mission.seed if seed is None else seed),
@@ -67,6 +67,14 @@ class EmbeddedVehicle:
             cmd += ["--lockstep", "--lockstep-rate", str(rate_hz)]
         if mission.noise:
             cmd += ["--noise"]
+        if mission.heading_deg:
+            cmd += ["--heading", str(mission.heading_deg)]
+        if signing_key is not None:
+            key_path = workdir / "signing.key"
+            key_path.write_text(bytes(signing_key).hex() + "\n")
+            cmd += ["--signing-key", str(key_path)]
+        for name, value in (params or {}).items():
+            cmd += ["--param", f"{name}={value}"]
         if start == "auto":
             start = "fork" if can_fork() else "spawn"
         self.log = subprocess.DEVNULL
@@ -82,6 +90,7 @@ class EmbeddedVehicle:
         self.start = start
         self.url = f"udpin:127.0.0.1:{port}"
         self.cmd = cmd
+        self.log_path = log_path
 
     def stop(self):
         if self.proc.poll() is None:
@@ -95,10 +104,17 @@ class EmbeddedVehicle:
             self.log.close()
 
     def check(self):
-        """Raise if the vehicle process died (with the end of its log)."""
+        """Raise FlightError if the vehicle process died, with the end of its log."""
         if self.proc.poll() is not None:
-            time.sleep(0.1)
-            raise RuntimeError(f"the bundled vehicle exited with code {self.proc.returncode}")
+            from .link import FlightError
+
+            tail = ""
+            if self.log_path is not None and self.log_path.exists():
+                lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines()
+                         if ln.strip()]
+                tail = ": " + " / ".join(lines[-3:]) if lines else ""
+            raise FlightError(f"the bundled vehicle exited with code {self.proc.returncode}"
+                              f"{tail}")
 
 
 def can_fork():

@@ -372,6 +372,10 @@ def run_mavlink(exp, i, j, seed, out_dir):
                           start_at=MISSION_START, timeout=600.0)
     wall = time.perf_counter() - t0
     tab = read_table(Path(folder) / "controller.csv")
+    # the mission's steps: not the final descent into the ground past its end
+    keep = np.array([p != "touchdown" for p in tab["phase"]], dtype=bool)
+    tab = {k: (v[keep] if isinstance(v, np.ndarray) else [x for x, ok in zip(v, keep) if ok])
+           for k, v in tab.items()}
 
     def xyz(prefix):
         return np.column_stack([tab[f"{prefix}{a}"] for a in "xyz"])
@@ -380,7 +384,8 @@ def run_mavlink(exp, i, j, seed, out_dir):
             "acc": xyz("acc_applied_"), "thrust": tab["thrust"], "ref_acc": xyz("ref_a"),
             "dist": xyz("true_dist_"), "yaw": tab["yaw"], "ref_yaw": tab["ref_yaw"]}
     traj, _ = m.build_trajectory()
-    rec = _run_record(exp, i, j, seed, "mavlink", m, cols, traj.duration, summary.get("aborted"),
+    aborted = "; ".join(summary.get("aborted") or []) or None
+    rec = _run_record(exp, i, j, seed, "mavlink", m, cols, traj.duration, aborted,
                       summary["hover_thrust"], wall)
     rec["record_folder"] = str(folder)
     return rec, None

@@ -32,6 +32,7 @@ SIZES = {
     "disturbance": (8.0, 7.0),
     "commands": (12.0, 7.5),           # record: attitude column + acceleration column
     "commands_attitude": (8.0, 7.5),   # tlog: attitude column only
+    "link": (8.0, 4.5),
 }
 
 NED = ("north", "east", "down")
@@ -315,6 +316,28 @@ def draw_commands(out, t, q, thrust, acc=None, spans=(), title="Commands", xlabe
 
 # ---------------------------------------------------------------------------------- records
 
+def draw_link(out, t, dt, age=None, spans=(), title="Link", xlabel="time [s]"):
+    """link.png: the interval between the samples the controller stepped on and, where the
+    clocks were synchronised (TIMESYNC), each sample's age: gaps, a slow stream and latency show
+    here."""
+    t = np.asarray(t, dtype=float)
+    have_age = age is not None and _finite(age)
+    fig = _figure("link")
+    fig.suptitle(title)
+    axes = fig.subplots(2 if have_age else 1, 1, sharex=True, squeeze=False)[:, 0]
+    axes[0].plot(t, 1e3 * np.asarray(dt, dtype=float), ".", ms=2, color="C0")
+    axes[0].set_ylabel("sample interval [ms]")
+    axes[0].set_ylim(bottom=0.0)
+    if have_age:
+        axes[1].plot(t, 1e3 * np.asarray(age, dtype=float), ".", ms=2, color="C1")
+        axes[1].set_ylabel("sample age [ms]")
+    axes[-1].set_xlabel(xlabel)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    _shade_phases(list(axes), list(spans))
+    return _save(fig, out, "link")
+
+
 def _cols(table, names, n):
     return np.column_stack([table.get(c, np.full(n, math.nan)) for c in names])
 
@@ -364,6 +387,9 @@ def plot_record(folder, out=None):
            _cols(table, [f"acc_applied_{a}" for a in ax3], n))
     paths.append(draw_commands(out, t, q, table.get("thrust", np.full(n, math.nan)), acc, spans,
                                title=_title(summary, "Commands"), xlabel=xlabel))
+    if "dt" in table and _finite(table["dt"]):
+        paths.append(draw_link(out, t, table["dt"], table.get("sample_age"), spans,
+                               title=_title(summary, "Samples"), xlabel=xlabel))
     return paths
 
 

@@ -1,4 +1,10 @@
-"""`mavadrc fly MISSION.yaml`: load, connect (or start the bundled vehicle), fly, record, report."""
+"""`mavadrc fly MISSION.yaml`: load, connect (or start the bundled vehicle), fly, record, report.
+
+Exit status: 0 when the vehicle took off, flew the mission, was seen to touch down and was seen
+disarmed, with nothing cut short; 1 when the flight did not start or ended any other way (the
+reasons and the vehicle's last known state are printed and in summary.json); 2 for a bad mission
+file or option, before anything is sent to a vehicle.
+"""
 
 import datetime
 import sys
@@ -6,10 +12,14 @@ from pathlib import Path
 
 from sim.yamlio import ConfigError
 
-from .flight import Flight, FlightError, print_table
-from .link import Link, LinkError
+from .flight import Flight, print_table
+from .link import FlightError, Link, LinkError, parse_url
 from .mission import load_mission
 from .record import FlightRecord
+
+
+class UsageError(ValueError):
+    """A mission or an option that cannot be flown as given (exit 2, nothing sent)."""
 
 
 def record_folder(out, mission, kind):
@@ -17,10 +27,44 @@ def record_folder(out, mission, kind):
     return Path(out) / f"{stamp}-{Path(mission.source).stem}-{kind}"
 
 
+def real_vehicle_notices(mission):
+    """With --connect the bundled vehicle's keys mean nothing: which are ignored, and the hover
+    thrust the flight takes from the mission (None: the autopilot's parameter)."""
+    notes = []
+    if mission.vehicle is not None:
+        notes.append(f"vehicle: {mission.vehicle} names a bundled vehicle: ignored with --connect "
+                     "(its hover thrust too; the autopilot's own is read)")
+    if mission.wind is not None:
+        notes.append("wind: ignored with --connect (the bundled vehicle's wind)")
+    if mission.sim_given:
+        notes.append("sim: ignored with --connect (the bundled vehicle's settings)")
+    if mission.controller.gains.get("input_lag") == "auto":
+        raise UsageError(
+            "input_lag: auto measures a bundled vehicle's response; against a connected "
+            "vehicle give the lags in seconds per axis (controller: {input_lag: [x, y, z]}; "
+            "measured: ArduCopter's default quad ~[0.16, 0.16, 0.05], PX4 SIH's quad "
+            "~[0.2, 0.2, 0.05])")
+    hover = None if mission.vehicle is not None else mission.hover_thrust
+    return notes, hover
+
+
 def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None, wind=None,
-        figures=True, progress=True, timeout=None, stream=sys.stdout, start_at=None):
-    """Fly ``mission`` (a :class:`~mavadrc.mission.Mission`); returns (summary, record folder)."""
+        figures=True, progress=True, timeout=None, stream=sys.stdout, start_at=None,
+        takeover=False, sysid=None, signing_key=None):
+    """Fly ``mission`` (a :class:`~mavadrc.mission.Mission`); returns (summary, record folder).
+
+    Raises :class:`UsageError` before anything is sent when the mission or an option cannot be
+    flown, and :class:`FlightError` / :class:`LinkError` when the flight could not start (the
+    record, summary.json included, is written either way)."""
     kind = kind or mission.controller.kind
+    hover, source = mission.hover_thrust, mission.hover_source
+    if connect is not None:
+        if lockstep:
+            raise UsageError("--lockstep needs the bundled vehicle (no --connect)")
+        parse_url(connect)
+        notes, hover = real_vehicle_notices(mission)
+        for n in notes:
+            stream.write(f"note: {n}\n")
     folder = record_folder(out or mission.out, mission, kind)
     rec = FlightRecord(folder, mission.text)
     vehicle = None
@@ -31,19 +75,20 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             from .embedded import EmbeddedVehicle
             vehicle = EmbeddedVehicle(mission, lockstep=lockstep,
                                       rate_hz=mission.controller.rate_hz, workdir=folder,
-                                      seed=seed, wind=wind, log_path=folder / "vehicle.log")
+                                      seed=seed, wind=wind, log_path=folder / "vehicle.log",
+                                      signing_key=signing_key)
             url = vehicle.url
             stream.write(f"started the bundled vehicle ({mission.vehicle or 'crazyflie'}, "
                          f"{mission.autopilot}{', lockstep' if lockstep else ''})\n")
         else:
-            if lockstep:
-                raise FlightError("--lockstep needs the bundled vehicle (no --connect)")
             url = connect
-        link = Link(url, tlog=rec.tlog)
+        link = Link(url, tlog=rec.tlog, signing_key=signing_key, sysid=sysid)
         flight = Flight(mission, link, rec, kind=kind, progress=progress, out=stream,
                         max_wall_s=timeout, lockstep=lockstep and connect is None,
                         heartbeat_timeout=15.0 if vehicle is None else 120.0,
-                        start_at=start_at)
+                        start_at=start_at, takeover=takeover, hover_thrust=hover,
+                        hover_source=source, bundled=True if vehicle is not None else None,
+                        watchdog=vehicle.check if vehicle is not None else None)
         summary = flight.run()
     finally:
         if link is not None:
@@ -52,30 +97,62 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             vehicle.stop()
         rec.close()
     if figures:
-        try:
-            from .figures import plot_record
-            plot_record(folder)
-        except ImportError:
-            pass
+        draw_figures(folder, stream)
     return summary, folder
+
+
+def draw_figures(folder, stream):
+    """The record's figures, from whatever the flight logged; a flight that logged nothing to
+    draw is said so, not a traceback."""
+    try:
+        from .figures import plot_record
+    except ImportError as exc:
+        stream.write(f"figures skipped: {exc}\n")
+        return
+    try:
+        plot_record(folder)
+    except ValueError as exc:
+        stream.write(f"figures skipped: {exc}\n")
 
 
 def main(args):
     try:
         mission = load_mission(args.mission)
-    except (ConfigError, OSError) as exc:
-        print(f"mavadrc fly: {exc}", file=sys.stderr)
-        return 2
-    try:
+        if args.wind is not None:
+            from sim.wind import load_wind
+            load_wind(args.wind)
         summary, folder = fly(mission, connect=args.connect, kind=args.controller, out=args.out,
                               lockstep=args.lockstep, seed=args.seed, wind=args.wind,
                               figures=not args.no_figures, progress=not args.quiet,
-                              timeout=args.timeout)
+                              timeout=args.timeout, takeover=args.takeover, sysid=args.sysid,
+                              signing_key=read_key(args.signing_key))
+    except (ConfigError, UsageError, OSError) as exc:
+        print(f"mavadrc fly: {exc}", file=sys.stderr)
+        return 2
     except (FlightError, LinkError) as exc:
         print(f"\nmavadrc fly: {exc}", file=sys.stderr)
         return 1
     print_table(summary)
-    state = "landed and disarmed" if summary["landed"] else (
-        f"ended: {summary['aborted']}" if summary["aborted"] else "not disarmed")
+    if summary["landed"]:
+        state = (f"landed (touchdown {summary['touchdown_speed_mps']:.2f} m/s) and disarmed"
+                 if summary.get("touchdown_speed_mps") is not None else "landed and disarmed")
+    elif summary["touchdown_seen"] and not summary["touchdown_soft"]:
+        state = (f"touched down hard ({summary['touchdown_speed_mps']:.2f} m/s)"
+                 + (" and disarmed" if summary["disarmed"] else ""))
+    else:
+        state = "ended: " + "; ".join(summary["aborted"] or ["not seen to land and disarm"])
+        state += f"; last known: {summary['last_known_state']}"
     print(f"  {summary['duration_s']:.1f} s, {state}; record in {folder}")
     return 0 if summary["landed"] else 1
+
+
+def read_key(path):
+    """The 32-byte signing secret of a --signing-key file (64 hex characters), or None."""
+    if path is None:
+        return None
+    from sim.server import read_signing_key
+
+    try:
+        return read_signing_key(path)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None

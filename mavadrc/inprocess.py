@@ -6,7 +6,11 @@ This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink fl
 * the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware);
 * the same timeline: on the ground until armed, the thrust spooled up
   (:func:`mavadrc.flight.spool_thrust`), the mission clock started at
-  :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side);
+  :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side), or
+  at the sample that shows the vehicle lifting off, if it does during the spool-up;
+* the same ground rules: until the vehicle has lifted off the observers hold no disturbance
+  estimate, and the heading turns from the vehicle's to the mission's at
+  :data:`mavadrc.flight.YAW_RATE`;
 * one control step per LOCAL_POSITION_NED sample, the reference read as the flight reads it, and
   every value that crosses the wire rounded to the float32 MAVLink carries (position, velocity,
   the setpoint quaternion and thrust, the millisecond boot time);
@@ -37,11 +41,14 @@ from sim.wind import WIND_SCRATCH
 from .control import geometry as G
 from .control import kernels as K
 from .control._jit import jit
-from .control.position import position_update
-from .flight import make_controller, spool_thrust
+from .control.position import position_hold_disturbance, position_update
+from .flight import (LIFTOFF_CLIMB, LIFTOFF_HEIGHT, YAW_RATE, make_controller, spool_thrust,
+                     wrap_pi)
 
-MISSION_START = 1.0  # s of vehicle time at which every run's mission clock starts
-ARM_AT = 0.35  # s: the fast path arms here (the lockstep flight arms a little earlier or later;
+#: s of vehicle time at which every run's mission clock starts: after the MAVLink flight has
+#: measured the sample rate (1 s), armed, and waited out PX4's COM_SPOOLUP_TIME (1 s)
+MISSION_START = 3.0
+ARM_AT = 1.01  # s: where the lockstep MAVLink flight arms (after measuring the rate for 1 s)
 # on the ground, disarmed or idle, nothing differs by the time the spool-up starts)
 
 # columns of the per-step log
@@ -93,16 +100,29 @@ def _attitude_setpoint(sp, q0, q1, q2, q3, thrust):
     sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
 
 
+#: the flight's ground rules, passed to the compiled loops (a constant read from another
+#: module would be frozen into numba's cache of this one)
+GROUND_RULES = np.array([LIFTOFF_HEIGHT, LIFTOFF_CLIMB, YAW_RATE])
+
+
+@jit
+def _lifted(pos, vel, origin, rules):
+    """:func:`mavadrc.flight.lifted_off` on a float32 sample."""
+    return origin[2] - pos[2] >= rules[0] or vel[2] < -rules[1]
+
+
 @jit
 def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
                 tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, times, Sc, Pc, Mc, INc, refs,
-                oracle, limits, origin, log):
+                oracle, limits, origin, rules, lifted, yaw_offset, log):
     """Fly the mission steps of ``refs`` (N, 10: pos, vel, acc, yaw) from tick ``tick0``.
 
     Each step: sample (float32), control over the interval since the last sample (``times``:
     sample times from the controller's start at t = 0), setpoint (float32), ``per`` physics
     steps.  ``limits`` = [north lo, hi, east lo, hi, altitude lo, hi, max speed] relative to
-    ``origin``.  Fills ``log`` row by row; returns (rows written, status).
+    ``origin``.  Until ``lifted`` the observers hold no disturbance; the reference's heading is
+    offset by ``yaw_offset``, turned to 0 at ``rules[2]`` (:data:`GROUND_RULES`).  Fills ``log`` row by row; returns (rows
+    written, status).
     """
     pos = np.empty(3)
     vel = np.empty(3)
@@ -129,7 +149,15 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             for i in range(3):
                 racc[i] -= dist[i]
         hc = times[j] - (times[j - 1] if j > 0 else 0.0)
-        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, refs[j, 9], out, hc)
+        if yaw_offset != 0.0:
+            yaw_offset -= max(-rules[2] * hc, min(rules[2] * hc, yaw_offset))
+        yaw_ref = refs[j, 9] + yaw_offset
+        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc)
+        if not lifted:
+            if _lifted(pos, vel, origin, rules):
+                lifted = True
+            else:
+                position_hold_disturbance(Sc)
         row = log[j]
         row[L_T] = times[j]
         for i in range(3):
@@ -145,7 +173,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
         G.quat_to_euler(e, eul)
         row[L_YAW] = eul[2]
-        row[L_REF_YAW] = refs[j, 9]
+        row[L_REF_YAW] = yaw_ref
         for i in range(3):
             row[L_REF_ACC + i] = refs[j, 6 + i]
         if not ok:
@@ -173,26 +201,44 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
 
 @jit
 def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext, tau_ext,
-          dt, tick0, att_div, pos_div, pos_dt, per, thrusts):
+          dt, tick0, att_div, pos_div, pos_dt, per, thrusts, origin, rules, start):
     """The flight's ground phase, one setpoint per control period: level at the measured
     heading (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it) with thrust ``thrusts[j]``
-    (idle, then the spool-up ramp), then ``per`` physics steps."""
+    (idle, then the spool-up ramp), then ``per`` physics steps.
+
+    Ends after the sample that shows the vehicle lifting off (relative to ``origin``), or after
+    the last thrust; ``start`` gets that sample's float32 position and heading (where the
+    mission starts).  Returns the number of setpoints sent."""
     e = np.empty(4)
     eul = np.empty(3)
+    pos = np.empty(3)
+    vel = np.empty(3)
     scratch = np.empty(WIND_SCRATCH)
     ws = np.empty((5, phys.NX))
     tick = tick0
-    for j in range(thrusts.shape[0]):
+    n = thrusts.shape[0]
+    for j in range(n):
+        for i in range(3):
+            pos[i] = _f32(x[i])
+            vel[i] = _f32(x[3 + i])
         for i in range(4):
             e[i] = x[phys.IX_Q + i]
         G.quat_to_euler(e, eul)
         yaw = _f32(eul[2])
+        last = j == n - 1 or _lifted(pos, vel, origin, rules)
+        if last:
+            for i in range(3):
+                start[i] = pos[i]
+            start[3] = yaw
         _attitude_setpoint(sp, _f32(math.cos(0.5 * yaw)), 0.0, 0.0, _f32(math.sin(0.5 * yaw)),
                            thrusts[j])
         advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
                           eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
                           per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
+        if last:
+            return j + 1
+    return n
 
 
 @dataclass
@@ -263,15 +309,12 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     t0 = float(ts_pre[n_pre])
     thrusts = f32(spool_thrust(ts_pre[:n_pre + 1], MISSION_START, hover))
     eta = packed.normals((n_pre + 1) * per)
-
-    def ground(first, last):
-        spool(*state, packed.params, packed.state, eta[first * per:last * per], *wind_out, dt,
-              tick0 + first * per, *timing, thrusts[first:last])
-
-    ground(0, n_pre)
-    ctrl.reset(f32(v.state[0:3]))
-    ground(n_pre, n_pre + 1)
-    v.ran((n_pre + 1) * per)
+    start = np.zeros(4)
+    sent = spool(*state, packed.params, packed.state, eta, *wind_out, dt, tick0, *timing, thrusts,
+                 origin, GROUND_RULES, start)
+    ctrl.reset(start[:3])
+    t0 = float(ts_pre[sent - 1])
+    v.ran(sent * per)
     # the mission steps: sample times as the wire carries them, the reference as the flight
     # reads it (the grid of control periods, or an exact sample off the grid)
     n_max = int(math.ceil((traj.duration + 2 * h) / h)) + 2
@@ -286,9 +329,10 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
                        sf.max_speed], dtype=float)
     Pc, Mc = ctrl.params
+    yaw_offset = wrap_pi(start[3] - float(traj.sample(0.0).yaw))
     rows, status = closed_loop(*state, packed.params, packed.state, eta, *wind_out, dt, v.tick,
                                *timing, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle, limits,
-                               origin, log)
+                               origin, GROUND_RULES, False, yaw_offset, log)
     v.ran((rows if status == STATUS_OK else rows - 1) * per)
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 

@@ -29,6 +29,10 @@ from sim.yamlio import ConfigError, Section, config_path, load_yaml
 from . import trajectories as T
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
+#: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
+#: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
+FINAL_HEIGHT = 0.5
+FINAL_SPEED = 0.3
 SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named")
 
 
@@ -52,6 +56,10 @@ class Safety:
     max_speed: float = 15.0  # m/s
     telemetry_timeout_s: float = 0.5
     set_guid_options: bool = False  # ArduPilot: set GUID_OPTIONS bit 3 if it is clear
+    max_sample_loss: float = 0.5  # share of samples lost over the last 2 s that ends the flight
+    max_gap_s: float = 0.5  # longest interval between samples before the flight ends (s)
+    min_rate_hz: float = 20.0  # below this achieved sample rate the flight is refused
+    max_touchdown_speed: float = 0.5  # m/s; a harder touchdown is no landing (exit 1)
 
 
 @dataclass
@@ -64,6 +72,8 @@ class Mission:
     safety: Safety
     vehicle: str = None  # a bundled vehicle name or file
     hover_thrust: float = None
+    hover_source: str = None  # where hover_thrust came from, for the console and the record
+    sim_given: bool = False  # the file has a sim: section (the bundled vehicle's settings)
     mass: float = None
     max_thrust: float = None
     wind: object = None  # name, path or mapping (bundled vehicle only)
@@ -71,6 +81,7 @@ class Mission:
     autopilot: str = "px4"  # personality of the bundled vehicle
     attitude_controller: str = "px4"  # the bundled vehicle's own inner loop
     noise: bool = False
+    heading_deg: float = 0.0  # the bundled vehicle's initial heading
     settle_s: float = 0.0  # errors are also reported after this mission time
     out: str = "runs"
     transit_speed: float = 1.0
@@ -80,14 +91,19 @@ class Mission:
         """Whether the trajectory ends with a land (else the autopilot lands after it)."""
         return bool(self.segments) and self.segments[-1][0] == "land"
 
-    def build_trajectory(self, origin=(0.0, 0.0, 0.0)):
+    def build_trajectory(self, origin=(0.0, 0.0, 0.0), in_air=False):
         """The mission's reference as one trajectory, offset to ``origin`` (NED of the takeoff
-        spot); returns (trajectory, [(start_time, segment name)])."""
+        spot); returns (trajectory, [(start_time, segment name)]).  ``in_air``: start where the
+        takeoff segment ends (taking over a vehicle in flight), without it."""
         parts, names = [], []
         here = np.zeros(3)  # mission frame: takeoff spot at the origin, NED
         here_vel = np.zeros(3)
         here_yaw = 0.0
-        for kind, spec, section in self.segments:
+        segments = self.segments
+        if in_air:
+            here = _ned(0.0, 0.0, segments[0][1]["altitude"])
+            segments = segments[1:]
+        for kind, spec, section in segments:
             try:
                 new = _segment(kind, spec, here, self)
             except ValueError as exc:
@@ -138,7 +154,8 @@ def _segment(kind, s, here, m):
         return [(T.Takeoff(here, s["altitude"], speed=s.get("speed", 0.5), yaw=_yaw(s)),
                  "takeoff")]
     if kind == "land":
-        return [(T.Land(here, s.get("speed", 0.5), yaw=_yaw(s)), "land")]
+        return [(T.Land(here, s.get("speed", 0.5), yaw=_yaw(s), final_speed=FINAL_SPEED,
+                        final_height=FINAL_HEIGHT), "land")]
     if kind == "hover":
         pos = _ned(*s["position"]) if "position" in s else here
         return [(T.Hover(pos, yaw=_yaw(s), duration=s["duration"]), "hover")]
@@ -241,6 +258,11 @@ _SEG_KEYS = {
                   "yaw": "tangent"},
     "named": {"name": "str", "params": "map", "duration": "pos"},
 }
+#: the largest value a segment key may take: sizes, speeds and durations a multirotor mission
+#: can mean (a typo such as a 1e9 s hover is refused before anything is computed)
+_MAX = {"altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
+        "period": 3600.0, "dwell": 3600.0, "laps": 1000.0, "z0": 1000.0, "omega": 10.0,
+        "climb": 10.0, "climb_rate": 10.0}
 _REQUIRED = {
     "takeoff": ("altitude",), "hover": ("duration",), "circle": ("radius", "speed"),
     "spiral": ("duration",), "figure_eight": ("a", "period", "duration"),
@@ -264,12 +286,13 @@ def _read_segment(sec):
     for key, what in _SEG_KEYS[kind].items():
         if not inner.has(key):
             continue
+        top = _MAX.get(key)
         if what == "pos":
-            spec[key] = inner.number(key, gt=0.0)
+            spec[key] = inner.number(key, gt=0.0, le=top)
         elif what == "nonneg":
-            spec[key] = inner.number(key, ge=0.0)
+            spec[key] = inner.number(key, ge=0.0, le=top)
         elif what == "num":
-            spec[key] = inner.number(key)
+            spec[key] = inner.number(key, ge=None if top is None else -top, le=top)
         elif what == "bool":
             spec[key] = inner.boolean(key)
         elif what == "str":
@@ -302,7 +325,7 @@ def _read_controller(sec, kinds=None):
     c = ControllerSpec()
     c.name = sec.string("name", None)  # a label (experiments' tables; mavadrc tune writes one)
     c.kind = sec.string("type", "ladrc", choices=kinds or KINDS)
-    c.rate_hz = sec.number("rate_hz", 100.0, gt=0.0, le=1000.0)
+    c.rate_hz = sec.number("rate_hz", 100.0, ge=5.0, le=500.0)
     c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
     c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
     c.thrust_max = sec.number("thrust_max", 1.0, gt=0.0, le=1.0)
@@ -346,8 +369,14 @@ def _read_safety(sec, s):
         a.check("max", s.altitude_max > s.altitude_min, "must exceed altitude.min")
         a.finish()
     s.max_speed = sec.number("max_speed", s.max_speed, gt=0.0)
-    s.telemetry_timeout_s = sec.number("telemetry_timeout_s", s.telemetry_timeout_s, gt=0.0)
+    s.telemetry_timeout_s = sec.number("telemetry_timeout_s", s.telemetry_timeout_s, ge=0.05,
+                                       le=10.0)
     s.set_guid_options = sec.boolean("set_guid_options", s.set_guid_options)
+    s.max_sample_loss = sec.number("max_sample_loss", s.max_sample_loss, gt=0.0, le=1.0)
+    s.max_gap_s = sec.number("max_gap_s", s.max_gap_s, gt=0.0, le=10.0)
+    s.min_rate_hz = sec.number("min_rate_hz", s.min_rate_hz, gt=0.0, le=500.0)
+    s.max_touchdown_speed = sec.number("max_touchdown_speed", s.max_touchdown_speed, gt=0.0,
+                                       le=5.0)
     sec.finish()
     return s
 
@@ -355,9 +384,50 @@ def _read_safety(sec, s):
 def load_mission(path):
     """Read and check a mission file; returns a :class:`Mission` or raises ConfigError."""
     path = config_path(path, "missions") if not Path(str(path)).exists() else Path(path)
-    text = Path(path).read_text()
+    text = read_text(path)
     data = load_yaml(path, text=text)
     return mission_from_section(Section(data, str(path)), str(path), text, Path(path).stem)
+
+
+def read_text(path):
+    """A configuration file's text; a file that is not UTF-8 text is a ConfigError naming it."""
+    data = Path(path).read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a YAML text file (byte {exc.start} is not UTF-8)") from None
+    if "\0" in text:
+        raise ConfigError(f"{path}: not a YAML text file (it holds NUL bytes)")
+    return text
+
+
+def check_limits(m, top, segs):
+    """Refuse a trajectory that leaves its own geofence, altitude or speed limits."""
+    traj, phases = m.build_trajectory()
+    sf = m.safety
+    t = np.arange(0.0, traj.duration + 0.025, 0.025)
+    pos, vel, _, _, _ = traj.sample_many(np.minimum(t, traj.duration))
+    north, east, alt = pos[:, 0], pos[:, 1], -pos[:, 2]
+    speed = np.linalg.norm(vel, axis=1)
+    bad = [(north < sf.geofence_north[0]) | (north > sf.geofence_north[1])
+           | (east < sf.geofence_east[0]) | (east > sf.geofence_east[1]),
+           (alt > sf.altitude_max) | (alt < sf.altitude_min),
+           speed > sf.max_speed]
+    what = ["leaves the geofence", "leaves the altitude limits", "exceeds safety.max_speed"]
+    for mask, text in zip(bad, what):
+        if mask.any():
+            k = int(np.argmax(mask))
+            tk = float(t[k])
+            name = phases[0][1]
+            for t0, n in phases:
+                if tk >= t0:
+                    name = n
+            at = (f"north {north[k]:.1f} m, east {east[k]:.1f} m, altitude {alt[k]:.1f} m, "
+                  f"{speed[k]:.1f} m/s")
+            seg = next((s for (kind, spec, s) in m.segments if name.endswith(kind)
+                        or spec.get("name") == name), None)
+            where = seg if seg is not None else top
+            where.error(None, f"the reference {text} at {tk:.1f} s ({name}: {at})")
 
 
 def mission_from_section(top, source, text, default_name="mission", require_land=True,
@@ -379,6 +449,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
             except ConfigError as exc:
                 top.error("vehicle", str(exc))
             m.hover_thrust = vp.hover_thrust_norm
+            m.hover_source = f"the bundled vehicle {v}"
         else:
             vs = top.section("vehicle")
             m.hover_thrust = vs.number("hover_thrust", None, gt=0.0, lt=1.0)
@@ -389,6 +460,12 @@ def mission_from_section(top, source, text, default_name="mission", require_land
             if m.mass is not None and m.max_thrust is not None and m.max_thrust <= m.mass * 9.80665:
                 vs.error("max_thrust", f"must exceed the weight ({m.mass * 9.80665:.3g} N)")
             vs.finish()
+            if m.hover_thrust is not None:
+                m.hover_source = "the mission's vehicle.hover_thrust"
+            elif m.mass is not None:
+                # thrust linear in the command: hovering takes weight / maximum thrust
+                m.hover_thrust = m.mass * 9.80665 / m.max_thrust
+                m.hover_source = "the mission's vehicle.mass and max_thrust"
     if controller:
         m.controller = _read_controller(top.section("controller")) if top.has("controller") \
             else ControllerSpec()
@@ -411,12 +488,14 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         except ConfigError as exc:
             top.error("wind", str(exc))
     if top.has("sim"):
+        m.sim_given = True
         s = top.section("sim")
         m.seed = int(s.number("seed", 0, ge=0))
         m.autopilot = s.string("autopilot", "px4", choices=("px4", "ardupilot"))
         m.attitude_controller = s.string("attitude_controller", "px4",
                                          choices=("px4", "ladrc", "adrc", "pd"))
         m.noise = s.boolean("noise", False)
+        m.heading_deg = s.number("heading_deg", 0.0, ge=-360.0, le=360.0)
         s.finish()
     m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()
     if top.has("logging"):
@@ -427,7 +506,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
     m.transit_speed = top.number("transit_speed", 1.0, gt=0.0)
     top.finish()
     try:
-        m.build_trajectory()
+        check_limits(m, top, segs)
     except ValueError as exc:
         if isinstance(exc, ConfigError):
             raise

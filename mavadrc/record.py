@@ -37,6 +37,7 @@ COLUMNS = (
     + [f"acc_applied_{a}" for a in AXES]
     + ["q_w", "q_x", "q_y", "q_z", "thrust"]
     + [f"true_dist_{a}" for a in AXES]
+    + ["dt", "sample_age"]  # s since the previous sample; s from its taking to our reading
 )
 
 
@@ -110,6 +111,21 @@ class TableWriter:
             self._f = None
 
 
+def _finite(x):
+    """``x`` with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
 def read_table(path):
     """controller.csv as a dict of numpy arrays (``phase`` stays a list of strings)."""
     with open(path, newline="") as f:
@@ -146,6 +162,32 @@ def error_figures(t, ref, pos, settle_s=0.0):
     }
 
 
+def attitude_oscillation(t, roll, pitch, window_s=1.0):
+    """Roll/pitch oscillation of a flight: the 99th percentile of |angle - its 1 s running mean|
+    (deg, the worse axis) and the strongest frequency of that axis (Hz, 0.2-10 Hz), or None with
+    less than 3 s of attitude.  A limit cycle shows here however good the position error looks.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 10 or t[-1] - t[0] < 3.0:
+        return None
+    dt = float(np.median(np.diff(t)))
+    k = max(3, int(round(window_s / dt)))
+    best = None
+    for a in (np.degrees(np.asarray(roll, dtype=float)), np.degrees(np.asarray(pitch, dtype=float))):
+        resid = (a - np.convolve(a, np.ones(k) / k, mode="same"))[k:-k]
+        if resid.size < 2 * k:
+            return None
+        amp = float(np.percentile(np.abs(resid), 99))
+        if best is None or amp > best[0]:
+            best = (amp, resid)
+    amp, resid = best
+    spectrum = np.abs(np.fft.rfft(resid * np.hanning(resid.size)))
+    freq = np.fft.rfftfreq(resid.size, dt)
+    band = (freq >= 0.2) & (freq <= 10.0)
+    f_peak = float(freq[band][np.argmax(spectrum[band])]) if band.any() else None
+    return {"amplitude_deg": amp, "frequency_hz": f_peak}
+
+
 class FlightRecord:
     """Creates the folder and its writers; ``finish(summary)`` writes summary.json."""
 
@@ -158,9 +200,16 @@ class FlightRecord:
             (self.folder / "mission.yaml").write_text(mission_text)
 
     def write_summary(self, summary):
+        """summary.json, strict JSON: a NaN or an infinity is written as null."""
         tmp = self.folder / "summary.json.tmp"
-        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+        tmp.write_text(json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
+                       + "\n")
         os.replace(tmp, self.folder / "summary.json")
+
+    def note(self, text):
+        """Append to companion.log (tracebacks of errors the flight survived)."""
+        with open(self.folder / "companion.log", "a") as f:
+            f.write(time.strftime("%H:%M:%S ") + text.rstrip() + "\n")
 
     def close(self):
         self.tlog.close()
@@ -168,6 +217,7 @@ class FlightRecord:
 
 
 YAW_COLUMN = COLUMNS.index("yaw")  # where the vehicle's yaw sits in a controller.csv row
+TRUTH_COLUMN = COLUMNS.index("true_dist_x")
 #: the parts of a row that come after its position sample: the vehicle's attitude, the truth
 ATTITUDE_PART, TRUTH_PART = 1, 2
 
@@ -191,8 +241,10 @@ class Recorder:
         self._row_ms = None
         self._row_have = 0
 
-    def step(self, t, segment, r, s, ctrl, q, thrust):
-        """The row of one control step at mission time ``t`` (reference ``r``, sample ``s``)."""
+    def step(self, t, segment, r, s, ctrl, q, thrust, scored=True):
+        """The row of one control step at mission time ``t`` (reference ``r``, sample ``s``);
+        ``scored``: whether it counts in the error figures (the final descent into the ground,
+        past the mission's end, does not)."""
         if self._row is not None:
             self._write_row()
         z = ctrl.z
@@ -201,10 +253,13 @@ class Recorder:
         row += z.ravel().tolist() if self.kind != "pd" else [math.nan] * 9
         row += ctrl.td.ravel().tolist() if self.kind == "adrc" else [math.nan] * 6
         row += [*ctrl.accel_command.tolist(), *ctrl.accel_applied.tolist(), *map(float, q),
-                float(thrust), math.nan, math.nan, math.nan]
+                float(thrust), math.nan, math.nan, math.nan,
+                math.nan if s.dt is None else s.dt, math.nan if s.age is None else s.age]
         self._row = row
         self._row_ms = int(round(s.t * 1000.0))
         self._row_have = 0
+        if not scored:
+            return
         self.t.append(t)
         self.ref.append(r.pos)
         self.pos.append(s.pos)
@@ -232,7 +287,7 @@ class Recorder:
         row = self._row
         self._row = None
         row[YAW_COLUMN] = float(self.yaw)
-        row[-3:] = self.true_dist.tolist()
+        row[TRUTH_COLUMN:TRUTH_COLUMN + 3] = self.true_dist.tolist()
         self.rec.table.row(row)
 
     def flush(self):

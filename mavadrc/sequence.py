@@ -1,27 +1,51 @@
 """What differs between PX4 and ArduPilot for a companion flying attitude setpoints.
 
 One object per autopilot: the mode that takes our setpoints and how to ask for it, the modes a
-failsafe hands the vehicle to, the parameter that holds the hover thrust, how to read a mode
-number, and the checks to make before the setpoint stream starts.  Nothing else in the companion
-branches on the autopilot's name.
+failsafe hands the vehicle to, mode names, the parameters that hold the hover thrust and the
+motors' start-up delay, and the checks to make before the setpoint stream starts.  Nothing else
+in the companion branches on the autopilot's name.
 """
 
 from .link import FlightError, M
 
+PX4_MAIN = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
+            7: "STABILIZED", 8: "RATTITUDE", 9: "TERMINATION"}
+PX4_AUTO = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND",
+            8: "FOLLOW_TARGET", 9: "PRECLAND", 10: "VTOL_TAKEOFF"}
 PX4_OFFBOARD = (6, 0)
 PX4_HOLD = (4, 3)
+PX4_LAND = (4, 6)
+PX4_RTL = (4, 5)
+
+AP_MODES = {0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER",
+            6: "RTL", 7: "CIRCLE", 9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP",
+            15: "AUTOTUNE", 16: "POSHOLD", 17: "BRAKE", 18: "THROW", 19: "AVOID_ADSB",
+            20: "GUIDED_NOGPS", 21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG",
+            25: "SYSTEMID", 26: "AUTOROTATE", 27: "AUTO_RTL", 28: "TURTLE"}
 AP_GUIDED_NOGPS = 20
 AP_GUIDED = 4
 AP_LOITER = 5
+AP_LAND = 9
+AP_RTL = 6
+AP_SMART_RTL = 21
 
 
 class Sequence:
     name = "?"
     control_mode = "?"  # the mode that takes our setpoints
     hover_param = None
+    motor_delay_param = None  # the parameter holding how long the motors need after arming
+    motor_delay_default = 0.0  # s; the autopilot's default, or its constant
+    #: streams a companion does not use that the autopilot sends on its link by default
+    unused_streams = ()
+    #: after touchdown, disarm by the autopilot's land mode (its landing detector cannot see
+    #: the ground while it takes our thrust)
+    land_to_disarm = False
+    #: whether the autopilot has DEBUG_VECT (the bundled vehicle's truth rides on it)
+    debug_vect = True
 
     def request_control(self, link):
-        """Ask for the mode that takes our setpoints."""
+        """Ask for the mode that takes our setpoints; returns the :class:`~mavadrc.link.Command`."""
         raise NotImplementedError
 
     def request_hold(self, link):
@@ -31,57 +55,134 @@ class Sequence:
         """Whether ``heartbeat`` shows the mode that takes our setpoints."""
         raise NotImplementedError
 
+    def is_hold(self, heartbeat):
+        raise NotImplementedError
+
+    def is_landing(self, heartbeat):
+        """Whether the autopilot is bringing the vehicle down (land, or return and land)."""
+        raise NotImplementedError
+
+    def mode_name(self, custom_mode):
+        raise NotImplementedError
+
     def preflight(self, flight):
         """Checks and settings before the setpoint stream (and a lockstep clock) starts."""
 
+    def release(self, link):
+        """After the flight, disarmed: out of the setpoint mode (into the hold mode, as
+        MAVSDK's offboard.stop() does), so the next companion does not find it taken."""
+        return self.request_hold(link)
+
+    def thrust_factor(self, flight):
+        """What the autopilot multiplies the thrust we send by, to be divided out (1: none)."""
+        return 1.0
+
 
 class PX4Sequence(Sequence):
-    """PX4: OFFBOARD (setpoints must already stream), Hold (AUTO.LOITER)."""
+    """PX4: OFFBOARD (setpoints must already stream), Hold (AUTO.LOITER), AUTO.LAND."""
 
     name = "px4"
     control_mode = "OFFBOARD"
     hover_param = "MPC_THR_HOVER"
+    # the ESCs' spool-up time PX4 gives its own takeoff (mc_pos_control); in OFFBOARD attitude
+    # control PX4 applies our thrust at once, so the flight waits it out itself
+    motor_delay_param = "COM_SPOOLUP_TIME"
+    motor_delay_default = 1.0
+    unused_streams = (M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                      M.MAVLINK_MSG_ID_ODOMETRY)
 
     def request_control(self, link):
-        link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_OFFBOARD)
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_OFFBOARD)
 
     def request_hold(self, link):
-        link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_HOLD)
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_HOLD)
+
+    @staticmethod
+    def _modes(heartbeat):
+        c = heartbeat.custom_mode
+        return (c >> 16) & 0xFF, (c >> 24) & 0xFF
 
     def in_control(self, heartbeat):
-        return (heartbeat.custom_mode >> 16) & 0xFF == PX4_OFFBOARD[0]
+        return self._modes(heartbeat)[0] == PX4_OFFBOARD[0]
+
+    def is_hold(self, heartbeat):
+        return self._modes(heartbeat) == PX4_HOLD
+
+    def is_landing(self, heartbeat):
+        return self._modes(heartbeat) in (PX4_LAND, PX4_RTL)
+
+    def mode_name(self, custom_mode):
+        main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+        name = PX4_MAIN.get(main, f"main mode {main}")
+        if main == 4:
+            name += "." + PX4_AUTO.get(sub, str(sub))
+        return name
 
 
 class ArduPilotSequence(Sequence):
-    """ArduCopter: GUIDED_NOGPS with GUID_OPTIONS bit 3 (thrust means thrust), LOITER."""
+    """ArduCopter: GUIDED_NOGPS with GUID_OPTIONS bit 3 (thrust means thrust), LOITER, LAND."""
 
     name = "ardupilot"
     control_mode = "GUIDED_NOGPS"
     hover_param = "MOT_THST_HOVER"
+    # ArduCopter holds the motors at minimum for ARMING_DELAY_SEC after arming: a build
+    # constant (ArduCopter/config.h), not a parameter
+    motor_delay_param = None
+    motor_delay_default = 2.0
+    # in GUIDED_NOGPS with thrust setpoints ArduCopter keeps the throttle mix high (no descent
+    # is demanded of its position controller, Copter::update_throttle_mix), so its landing
+    # detector never fires and a disarm is refused: its LAND mode lands and disarms instead
+    land_to_disarm = True
+    debug_vect = False  # SET_MESSAGE_INTERVAL for it is DENIED (GCS_Common.cpp)
+
+    def __init__(self):
+        self.angle_boost = True  # ATC_ANGLE_BOOST, read in preflight
 
     def request_control(self, link):
-        link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
 
     def request_hold(self, link):
-        link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
 
     def in_control(self, heartbeat):
         return heartbeat.custom_mode in (AP_GUIDED_NOGPS, AP_GUIDED)
 
+    def is_hold(self, heartbeat):
+        return heartbeat.custom_mode == AP_LOITER
+
+    def is_landing(self, heartbeat):
+        return heartbeat.custom_mode in (AP_LAND, AP_RTL, AP_SMART_RTL)
+
+    def mode_name(self, custom_mode):
+        return AP_MODES.get(custom_mode, f"mode {custom_mode}")
+
     def preflight(self, flight):
         link = flight.link
         opts = int(link.param_read("GUID_OPTIONS"))
-        if opts & 8:
-            return
-        if not flight.m.safety.set_guid_options:
-            raise FlightError(
-                "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust would be "
-                "read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the vehicle, or put "
-                "'set_guid_options: true' under safety: in the mission to let mavadrc set it")
-        got = int(link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32))
-        if not got & 8:
-            raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
-        flight.console.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
+        if not opts & 8:
+            if not flight.m.safety.set_guid_options:
+                raise FlightError(
+                    "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust "
+                    "would be read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the "
+                    "vehicle, or put 'set_guid_options: true' under safety: in the mission to "
+                    "let mavadrc set it")
+            got = int(link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32))
+            if not got & 8:
+                raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
+            flight.console.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
+        # GUIDED multiplies the thrust it is sent by 1/cos(lean angle) when ATC_ANGLE_BOOST is
+        # on (AC_AttitudeControl_Multi::get_throttle_boosted)
+        boost = flight.read_param("ATC_ANGLE_BOOST", 1.0)
+        self.angle_boost = bool(boost)
+        flight.sources["angle_boost"] = (
+            f"ATC_ANGLE_BOOST {int(boost)}: thrust sent x cos(lean angle)" if self.angle_boost
+            else "ATC_ANGLE_BOOST 0: thrust sent as computed")
+
+    def thrust_factor(self, flight):
+        if not self.angle_boost:
+            return 1.0
+        # ArduCopter divides by cos of the current lean angle, clamped at 0.1
+        return max(0.1, flight.cos_tilt)
 
 
 def sequence_for(autopilot):

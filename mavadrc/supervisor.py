@@ -1,20 +1,77 @@
-"""The flight's safety checks, apart from the phases that fly: what is wrong, not what to do.
+"""The flight's supervisor: checks turned into actions, apart from the phases that fly.
 
-Each check looks at a sample or at the clock and names what it found; the flight turns that
-into an action (level hover, hold, the autopilot's land mode).
+Modelled on PX4's commander failsafe framework: each check raises a condition; a fixed table says
+which action the condition calls for; the actions are ordered by severity and a flight only
+ever escalates (a landing is never turned back into a hold).  Every condition is kept, in order,
+as a reason the flight ended early (``summary.json``'s ``aborted``).
+
+===================  ================  =============================================
+condition            action            why
+===================  ================  =============================================
+left_control         watch             the pilot or a failsafe took the vehicle: do not
+                                       fight it, watch it land
+interrupted          hold, then land   Ctrl-C: stop where it is, then come down
+link                 hold, then land   loss or a gap past ``safety`` limits
+stale                land              no telemetry: we cannot fly what we cannot see
+breach               land              geofence, altitude or speed limit
+timeout              land              ``--timeout`` passed
+exception            land              an error in the companion itself
+touchdown_timeout    land              touchdown not seen in its bound
+disarm_timeout       land              the autopilot would not disarm in its bound
+refused              land              the autopilot refused what the flight needs
+landing_timeout      give up           the autopilot has not landed in its bound
+unreachable          give up           no heartbeat: nothing more can be done
+===================  ================  =============================================
 """
 
 import math
 
+CONTINUE, WATCH, HOLD_THEN_LAND, LAND, GIVE_UP = range(5)
+ACTION_NAMES = {CONTINUE: "continue", WATCH: "watch", HOLD_THEN_LAND: "hold, then land",
+                LAND: "land", GIVE_UP: "give up"}
+
+RULES = {
+    "left_control": WATCH,
+    "interrupted": HOLD_THEN_LAND,
+    "link": HOLD_THEN_LAND,
+    "stale": LAND,
+    "breach": LAND,
+    "timeout": LAND,
+    "exception": LAND,
+    "touchdown_timeout": LAND,
+    "disarm_timeout": LAND,
+    "refused": LAND,
+    "landing_timeout": GIVE_UP,
+    "unreachable": GIVE_UP,
+}
+
 
 class Supervisor:
+    """Keeps the reasons and the action in force; the checks are pure functions of what the
+    flight sees."""
+
     def __init__(self, safety, telemetry_timeout):
         self.sf = safety
         self.telemetry_timeout = telemetry_timeout
+        self.reasons = []  # every condition's message, in order
+        self.conditions = []
+        self.action = CONTINUE
+
+    def report(self, condition, message):
+        """Record a condition; returns the action to take now if it escalates, else None."""
+        action = RULES[condition]
+        if message not in self.reasons:
+            self.reasons.append(message)
+            self.conditions.append(condition)
+        if action > self.action:
+            self.action = action
+            return action
+        return None
+
+    # --- checks: what is wrong (None when nothing is) ---------------------------------------------
 
     def breach(self, s, origin):
-        """The geofence, altitude or speed limit ``s`` breaks (relative to ``origin``), or
-        None."""
+        """The geofence, altitude or speed limit ``s`` breaks (relative to ``origin``)."""
         sf = self.sf
         north, east, down = (s.pos - origin).tolist()
         alt = -down
@@ -29,8 +86,31 @@ class Supervisor:
             return f"speed limit breach at {speed:.1f} m/s"
         return None
 
-    def stale_for(self, now, last_sample_wall, last_send_wall):
-        """Seconds telemetry has been stale beyond the timeout (<= 0: fresh).  Counted from the
-        last sample, or from our answer to it if that took long: a lockstep vehicle cannot
-        move on before our answer."""
-        return now - max(last_sample_wall, last_send_wall) - self.telemetry_timeout
+    def stale(self, now, last_sample_wall, last_send_wall):
+        """Telemetry stale past the timeout: counted from the last sample, or from our answer to
+        it if that took long (a lockstep vehicle cannot move on before our answer)."""
+        quiet = now - max(last_sample_wall, last_send_wall)
+        if quiet > self.telemetry_timeout:
+            return f"telemetry lost ({quiet:.2f} s without a sample)"
+        return None
+
+    def link(self, gate):
+        """Sample loss over the last seconds, or a gap, past the mission's limits."""
+        loss = gate.recent_loss()
+        if loss > self.sf.max_sample_loss:
+            return (f"link: {100 * loss:.0f} % of the samples lost over the last seconds "
+                    f"(limit {100 * self.sf.max_sample_loss:.0f} %)")
+        if gate.longest_gap > self.sf.max_gap_s:
+            return (f"link: a {gate.longest_gap:.2f} s gap between samples "
+                    f"(limit {self.sf.max_gap_s:.2f} s)")
+        return None
+
+    @staticmethod
+    def link_warning(gate):
+        """Worth a warning, not an ending: loss past 2 %, or a gap past 3 periods."""
+        loss = gate.recent_loss()
+        if loss > 0.02:
+            return f"{100 * loss:.1f} % of the samples lost"
+        if gate.intervals and gate.intervals[-1] > 3.0 * gate.period:
+            return f"a {gate.intervals[-1]:.3f} s gap between samples"
+        return None

@@ -508,17 +508,32 @@ class Takeoff(Waypoints):
 class Land(Waypoints):
     """Vertical minimum-jerk descent from ``from_pos`` to the ground (z = 0) at peak ``speed``.
 
-    The reference ends on the ground with zero velocity; detecting touchdown and disarming
-    belong to the mission, not to the reference.
+    With ``final_speed``, the last ``final_height`` metres are a second leg at that peak speed:
+    an altitude estimate off by a few tenths of a metre then meets the ground slowly, whichever
+    way it is off.  The reference ends on the ground with zero velocity; detecting touchdown
+    and disarming belong to the mission, not to the reference.
     """
 
-    def __init__(self, from_pos, speed: float, yaw: float = 0.0):
+    def __init__(self, from_pos, speed: float, yaw: float = 0.0, final_speed=None,
+                 final_height: float = 0.5):
         start = _vector("Land", "from_pos", from_pos, 3)
         if not start[2] < 0.0:
             raise ValueError(f"Land: from_pos must be above the ground (z < 0), got z = {start[2]}")
         speed = _number("Land", "speed", speed, positive=True)
         end = np.array([start[0], start[1], 0.0])
-        super().__init__([start, end], speed=speed, yaw=_number("Land", "yaw", yaw))
+        yaw = _number("Land", "yaw", yaw)
+        if final_speed is None or _number("Land", "final_speed", final_speed,
+                                          positive=True) >= speed:
+            super().__init__([start, end], speed=speed, yaw=yaw)
+            return
+        final_height = _number("Land", "final_height", final_height, positive=True)
+        if -start[2] <= final_height:
+            super().__init__([start, end], speed=final_speed, yaw=yaw)
+            return
+        mid = np.array([start[0], start[1], -final_height])
+        durations = [MIN_JERK_PEAK * (mid[2] - start[2]) / speed,
+                     MIN_JERK_PEAK * final_height / final_speed]
+        super().__init__([start, mid, end], durations=durations, yaw=yaw)
 
 
 # --------------------------------------------------------------------------- sequence

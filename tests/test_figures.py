@@ -54,7 +54,8 @@ def _write_record(folder, controller="ADRC"):
         z3 = [d + 0.01 for d in dist] if controller != "PD" else [math.nan] * 3
         row = {"t": float(ti), "phase": "takeoff" if i < 50 else ("land" if i > 350 else "mission"),
                "ref_yaw": float(yaw), "yaw": float(yaw), "thrust": 0.5 + 0.05 * math.sin(ti),
-               "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3]}
+               "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
+               "dt": DT * (3 if i == 200 else 1), "sample_age": 0.004 + 0.001 * (i % 3)}
         for k, a in enumerate(record.AXES):
             row.update({f"ref_{a}": float(ref[i, k]), f"pos_{a}": float(pos[i, k]),
                         f"ref_v{a}": 0.0, f"ref_a{a}": 0.0, f"vel_{a}": 0.0,
@@ -80,7 +81,7 @@ def record_dir(tmp_path_factory):
 def test_plot_record_writes_four_figures(record_dir, tmp_path):
     paths = figures.plot_record(record_dir, out=tmp_path / "figs")
     names = sorted(p.name for p in paths)
-    assert names == ["commands.png", "disturbance.png", "error.png", "path3d.png"]
+    assert names == ["commands.png", "disturbance.png", "error.png", "link.png", "path3d.png"]
     for p in paths:
         _check_png(p, p.stem)
 
@@ -92,7 +93,7 @@ def test_plot_record_pd_has_no_observer(tmp_path):
     paths = figures.plot_record(tmp_path)  # into the record folder itself
     assert {p.parent for p in paths} == {tmp_path}
     _check_png(tmp_path / "disturbance.png", "disturbance")
-    assert len(paths) == 4
+    assert len(paths) == 5
 
 
 def test_quat_to_euler_deg():

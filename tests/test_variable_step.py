@@ -587,8 +587,9 @@ def test_a_bad_interval_is_refused_and_leaves_the_state_alone(dt):
 @pytest.mark.parametrize("kind", ["ladrc", "adrc", "pid"])
 def test_hold_disturbance_keeps_the_ground_reaction_out_of_the_estimates(kind):
     """On the ground the vehicle cannot follow a command to descend: the ground's reaction looks
-    like a disturbance.  With hold_disturbance after each step, z3 (PID: the integrator) stays
-    0, and the take-off starts from a clean estimate; without it, the estimate runs away."""
+    like a disturbance.  With hold_disturbance after each step, the vertical z3 (PID: the
+    integrator) stays 0, and the take-off starts from a clean estimate; without it, the
+    estimate runs away."""
     def sit(hold):
         c = PositionController(kind, h=HP, hover_thrust=0.5,
                                **({"wc": 2.0, "wo": 10.0} if kind == "ladrc" else
@@ -600,8 +601,7 @@ def test_hold_disturbance_keeps_the_ground_reaction_out_of_the_estimates(kind):
         return c
 
     held = sit(True)
-    assert np.array_equal(held.disturbance, np.zeros(3))
-    assert np.all(held._S[:, K.S_I] == 0.0)
+    assert held.disturbance[2] == 0.0 and held._S[2, K.S_I] == 0.0
     assert abs(sit(False).disturbance[2]) > 0.1
 
 

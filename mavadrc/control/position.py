@@ -88,9 +88,12 @@ def position_start(S, P, IN, pos, vel):
 
 @jit
 def position_hold_disturbance(S):
-    """:func:`kernels.hold_disturbance` on the three channels (while on the ground)."""
-    for i in range(3):
-        K.hold_disturbance(S[i])
+    """:func:`kernels.hold_disturbance` on the vertical channel, while on the ground.
+
+    The ground pushes up: that reaction is no disturbance to carry into the take-off.  Sideways
+    the ground holds the vehicle by friction only until the thrust nears its weight; a wind then
+    pushes it before it leaves the ground, and the horizontal observers must be learning that."""
+    K.hold_disturbance(S[2])
 
 
 def _axis(value, i, name):
@@ -187,11 +190,11 @@ class PositionController:
             self._IN[:, IN_DIFF] = 0.0
 
     def hold_disturbance(self):
-        """Zero every axis's disturbance estimate z3 (PID: the integrator).
+        """Zero the vertical disturbance estimate z3 (PID: the integrator).
 
         Call it after each :meth:`update` while the vehicle rests on the ground, so the
-        observers do not learn the ground's reaction and carry it into the take-off.
-        """
+        observers do not learn the ground's reaction and carry it into the take-off
+        (:func:`position_hold_disturbance`: only the vertical axis)."""
         position_hold_disturbance(self._S)
 
     def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0, dt=None):
