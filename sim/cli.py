@@ -2,6 +2,7 @@
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -32,6 +33,11 @@ def add_arguments(p):
     p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
     p.add_argument("--home", default="47.397742,8.545594,488.0",
                    help="home LAT,LON,ALT (deg, deg, m AMSL)")
+    p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
+                   help="initial heading (deg from north, clockwise; default 0)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="initial value of one of the autopilot's parameters, e.g. "
+                        "COM_SPOOLUP_TIME=0 (repeatable)")
     p.add_argument("--offboard-port", type=int, default=None,
                    help="UDP port the offboard link sends to (default 14540 + instance)")
     p.add_argument("--gcs-port", type=int, default=None,
@@ -69,15 +75,38 @@ def warm_up(vehicle, wind, attitude_controller):
     v.reported()
 
 
+def parse_params(items, autopilot):
+    """{NAME: value} from --param NAME=VALUE items; SystemExit naming the bad one."""
+    from .personality import personality
+    from .server import parse_param
+
+    ap = personality(autopilot)
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise SystemExit(f"--param must be NAME=VALUE (got {item!r})")
+        try:
+            out[name] = parse_param(ap, name, value.strip())
+        except ValueError as e:
+            raise SystemExit(f"--param {item}: {e}") from None
+    return out
+
+
 def make_server(args):
     from .vehicle import SimVehicle
 
+    if not math.isfinite(args.heading):
+        raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
+    params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
     if args.noise or args.latency > 0.0:
         sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}
     vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed, sensors=sensors,
-                         attitude_controller=args.attitude_controller)
+                         attitude_controller=args.attitude_controller,
+                         yaw=math.radians(args.heading))
     try:
         home = tuple(float(v) for v in args.home.split(","))
         if len(home) != 3:
@@ -88,7 +117,7 @@ def make_server(args):
     return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
                       offboard_port=args.offboard_port, gcs_port=args.gcs_port,
-                      bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs)
+                      bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs, params=params)
 
 
 def run(args):

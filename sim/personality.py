@@ -4,8 +4,15 @@ A personality owns the heartbeat identity, the custom-mode encoding, the mapping
 command to one of the vehicle's behaviours, the parameter set and the offboard rules.  The
 vehicle's behaviours (the ``Behaviour`` names) are shared: hold, takeoff, land, rtl, and the two
 that accept external setpoints, offboard (PX4) and guided (ArduPilot).
+
+It also owns what makes each autopilot less kind than a simulator (see the design notes,
+MAVLINK.md section 9): when heartbeats go out, how long the motors stay at idle after arming,
+the land detector, when the autopilot disarms by itself, the offboard-loss failsafe, which
+messages it can stream and the MAV_RESULT of a refusal.  Each rule names the source file of the
+real autopilot it follows (PX4-Autopilot and ArduPilot as of 2026).
 """
 
+import math
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -38,6 +45,163 @@ PX4_MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOA
 PX4_AUTO_SUB = {"READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6}
 
 
+class Hysteresis:
+    """PX4's systemlib::Hysteresis as its land detector uses it: the state becomes true once the
+    condition has held for ``rise`` seconds, and false at once."""
+
+    def __init__(self, rise, state=True):
+        self.rise = float(rise)
+        self.state = state
+        self._held = 0.0
+
+    def update(self, cond, dt):
+        if not cond:
+            self.state = False
+            self._held = 0.0
+        elif not self.state:
+            self._held += dt
+            if self._held >= self.rise - 1e-9:
+                self.state = True
+        return self.state
+
+    def set(self, state):
+        self.state = state
+        self._held = 0.0
+
+
+@dataclass
+class LandInputs:
+    """What a land detector reads each step: the collective thrust the vehicle is asked for
+    (normalized), the measured velocity (NED, m/s) and roll/pitch rate norm (rad/s), the tilt of
+    the attitude target (rad), whether the altitude is under closed-loop climb-rate control and
+    whether that loop is commanding a descent."""
+    thrust: float
+    velocity: tuple
+    rates_xy: float
+    target_tilt: float
+    climb_rate_control: bool
+    in_descend: bool
+
+
+class PX4LandDetector:
+    """PX4's multicopter land detector (src/modules/land_detector/MulticopterLandDetector.cpp,
+    LandDetector.cpp), without a distance sensor: land detection time 1 s, in three hysteresis
+    stages of 1/3 s each (ground contact -> maybe landed -> landed); any stage clears at once.
+
+    - ground contact: thrust <= MPC_THR_MIN + (hover - MPC_THR_MIN) * 0.3 (0.6 with a hover
+      thrust estimate, i.e. under climb-rate control), |vz| < LNDMC_Z_VEL_MAX (x 2.5 once landed),
+      |vxy| <= LNDMC_XY_VEL_MAX, and under climb-rate control a commanded descent unless already
+      (maybe) landed;
+    - maybe landed: ground contact, roll/pitch rate <= LNDMC_ROT_MAX (x 2.5 once landed) and
+      "minimum thrust": under climb-rate control thrust <= MPC_THR_MIN + (hover - MPC_THR_MIN) *
+      0.1, otherwise (offboard attitude, manual) thrust <= MPC_MANTHR_MIN + 0.01;
+    - landed: maybe landed for another 1/3 s.
+
+    So an armed vehicle sitting on the ground with offboard thrust above 0.09 reports IN_AIR, as
+    PX4 does, and a vehicle whose thrust is cut reports ON_GROUND about 1 s later.
+    """
+
+    STAGE_S = 1.0 / 3.0
+
+    def __init__(self):
+        self.ground_contact = Hysteresis(self.STAGE_S)
+        self._maybe = Hysteresis(self.STAGE_S)
+        self._landed = Hysteresis(self.STAGE_S)
+
+    @property
+    def landed(self):
+        return self._landed.state
+
+    @property
+    def maybe_landed(self):
+        return self._maybe.state
+
+    def reset(self):
+        for h in (self.ground_contact, self._maybe, self._landed):
+            h.set(True)
+
+    def update(self, dt, params, armed, u):
+        if not armed:
+            self.reset()
+            return
+        p = lambda name: float(params[name][0])  # noqa: E731
+        hover, thr_min = p("MPC_THR_HOVER"), p("MPC_THR_MIN")
+        was_landed = self._landed.state
+        vz_max = p("LNDMC_Z_VEL_MAX") * (2.5 if was_landed else 1.0)
+        vx, vy, vz = u.velocity
+        low = u.thrust <= thr_min + (hover - thr_min) * (0.6 if u.climb_rate_control else 0.3)
+        contact = low and abs(vz) < vz_max and math.hypot(vx, vy) <= p("LNDMC_XY_VEL_MAX")
+        if u.climb_rate_control and not self._maybe.state and not was_landed:
+            contact = contact and u.in_descend
+        self.ground_contact.update(contact, dt)
+        if u.climb_rate_control:
+            min_thrust = thr_min + (hover - thr_min) * 0.1
+        else:
+            min_thrust = p("MPC_MANTHR_MIN") + 0.01
+        rot_max = math.radians(p("LNDMC_ROT_MAX")) * (2.5 if was_landed else 1.0)
+        self._maybe.update(u.thrust <= min_thrust and u.rates_xy <= rot_max
+                           and self.ground_contact.state, dt)
+        self._landed.update(self._maybe.state, dt)
+
+
+class ArduCopterLandDetector:
+    """ArduCopter's land detector (ArduCopter/land_detector.cpp, constants in config.h).
+
+    Landed (ap.land_complete) once, for LAND_DETECTOR_TRIGGER_SEC (1.0 s) in a row, the motors
+    are at their lower throttle limit, the target lean is under 15 deg (LAND_CHECK_LARGE_ANGLE_CD),
+    the 1 Hz low-passed earth-frame acceleration is under LAND_DETECTOR_ACCEL_MAX (1 m/s/s) and
+    |vz| < LAND_DETECTOR_VEL_Z_MAX (1 m/s); the filter is what makes a 1.7 m/s touchdown read
+    as landed ~1.4 s later.  Maybe landed after LAND_DETECTOR_MAYBE_TRIGGER_SEC (0.2 s).  Landing
+    is cleared by the flight mode when it is asked for positive thrust or climb (mode_guided.cpp
+    angle_control_run: "landed with positive desired climb rate or thrust, takeoff").
+    """
+
+    TRIGGER_S = 1.0
+    MAYBE_S = 0.2
+    ACCEL_MAX = 1.0
+    VEL_Z_MAX = 1.0
+    LARGE_ANGLE = math.radians(15.0)
+    ACCEL_CUTOFF_HZ = 1.0
+
+    def __init__(self):
+        self.reset()
+
+    def reset(self):
+        self.landed = True
+        self._count = 0.0
+        self._acc_f = [0.0, 0.0, 0.0]
+        self._v_prev = None
+
+    @property
+    def maybe_landed(self):
+        return self.landed or self._count >= self.MAYBE_S
+
+    def update(self, dt, params, armed, u):
+        v = u.velocity
+        if self._v_prev is not None and dt > 0.0:
+            alpha = dt / (dt + 1.0 / (2.0 * math.pi * self.ACCEL_CUTOFF_HZ))
+            for i in range(3):
+                self._acc_f[i] += alpha * ((v[i] - self._v_prev[i]) / dt - self._acc_f[i])
+        self._v_prev = tuple(v)
+        if not armed:
+            self.landed = True
+            self._count = 0.0
+            return
+        if self.landed:
+            if u.thrust > 0.0:  # the mode asks for lift: take-off
+                self.landed = False
+                self._count = 0.0
+            return
+        acc = math.sqrt(sum(a * a for a in self._acc_f))
+        if (u.thrust <= 0.0 and u.target_tilt <= self.LARGE_ANGLE and acc <= self.ACCEL_MAX
+                and abs(v[2]) < self.VEL_Z_MAX):
+            self._count += dt
+            if self._count >= self.TRIGGER_S - 1e-9:
+                self.landed = True
+        else:
+            self._count = 0.0
+
+
 @dataclass
 class Personality:
     name: str
@@ -49,6 +213,29 @@ class Personality:
     bytewise_params: bool
     flight_sw_version: int
     mode_aliases: dict = field(default_factory=dict)
+    sysid_param: str = "MAV_SYS_ID"
+    hover_param: str = "MPC_THR_HOVER"
+    #: a heartbeat goes out at once when the mode changes (besides the 1 Hz one)
+    heartbeat_on_mode_change: bool = False
+    #: parameter (s) holding the motors at idle after arming; setpoints meanwhile do nothing
+    spoolup_param: str = "COM_SPOOLUP_TIME"
+    #: the idle hold also applies to offboard attitude thrust (not only to position control)
+    spoolup_holds_attitude_thrust: bool = False
+    #: parameter (s) after which a silent setpoint stream is a lost offboard link (None: no
+    #: such failsafe)
+    offboard_loss_param: str = None
+    #: MAV_RESULTs of refusals
+    arming_refused: int = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    interval_refused: int = mavlink.MAV_RESULT_FAILED
+    request_refused: int = mavlink.MAV_RESULT_DENIED
+    #: SET_MESSAGE_INTERVAL(HEARTBEAT) is accepted (and ignored: always 1 Hz)
+    heartbeat_interval_settable: bool = False
+    #: MAVLink ids it can stream or send on request (None: every one the vehicle builds)
+    messages: frozenset = None
+    #: STATUSTEXTs (None: the autopilot says nothing)
+    disarm_denied_text: str = None
+    landing_text: str = None
+    takeoff_text: str = None
 
     def mode(self, name):
         return self.modes[name]
@@ -58,6 +245,112 @@ class Personality:
             if m.custom_mode == custom_mode:
                 return m
         return None
+
+    def sends(self, msgid):
+        return self.messages is None or msgid in self.messages
+
+    # the rules below are overridden per autopilot
+
+    def land_detector(self):
+        raise NotImplementedError
+
+    def disarm_allowed(self, ld):
+        """A disarm command without force is accepted in this land-detector state."""
+        raise NotImplementedError
+
+    def auto_disarm(self, params, t, armed_t, taken_off, landed_since):
+        """Reason key for disarming by itself now (None: stay armed)."""
+        raise NotImplementedError
+
+    def armed_text(self):
+        raise NotImplementedError
+
+    def disarmed_text(self, reason):
+        raise NotImplementedError
+
+    def interval_refused_text(self, msgid):
+        return None
+
+    def offboard_loss_action(self, params):
+        """(mode name, or 'DISARM' / 'TERMINATE', the failsafe action's name)."""
+        return None
+
+
+class PX4(Personality):
+    def land_detector(self):
+        return PX4LandDetector()
+
+    def disarm_allowed(self, ld):
+        # Commander::disarm: landed or maybe_landed, else "Disarming denied: not landed"
+        return ld.landed or ld.maybe_landed
+
+    def auto_disarm(self, params, t, armed_t, taken_off, landed_since):
+        """Commander::handleAutoDisarm: COM_DISARM_LAND s after landing was detected if the
+        vehicle took off since arming; otherwise COM_SPOOLUP_TIME + COM_DISARM_PRFLT s after
+        arming, in every mode (OFFBOARD included).  A value <= 0 disables the rule."""
+        land = float(params["COM_DISARM_LAND"][0])
+        prflt = float(params["COM_DISARM_PRFLT"][0])
+        if taken_off:
+            if land > 0.0 and landed_since is not None and t - landed_since >= land - 1e-9:
+                return "landing"
+        elif prflt > 0.0:
+            if t - armed_t >= float(params["COM_SPOOLUP_TIME"][0]) + prflt - 1e-9:
+                return "preflight_inaction"
+        return None
+
+    def armed_text(self):
+        return "Armed by external command"
+
+    _DISARM_REASONS = {"external": "external command", "landing": "landing",
+                       "preflight_inaction": "auto preflight disarming", "failsafe": "failsafe"}
+
+    def disarmed_text(self, reason):
+        return f"Disarmed by {self._DISARM_REASONS.get(reason, reason)}"
+
+    # COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold,
+    # 6 Terminate, 7 Disarm (commander_params.c)
+    _OBL = {3: ("AUTO.RTL", "RTL"), 4: ("AUTO.LAND", "Land"), 5: ("AUTO.LOITER", "Hold"),
+            6: ("TERMINATE", "terminate"), 7: ("DISARM", "disarm")}
+    # NAV_RCL_ACT: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Disarm
+    _RCL = {1: ("AUTO.LOITER", "Hold"), 2: ("AUTO.RTL", "RTL"), 3: ("AUTO.LAND", "Land"),
+            5: ("TERMINATE", "terminate"), 6: ("DISARM", "disarm")}
+
+    def offboard_loss_action(self, params):
+        """failsafe.cpp checkModeFallback: COM_OBL_RC_ACT; its stick-flown modes (Position,
+        Altitude, Stabilized) cannot run without manual control, and the bundled vehicle has no
+        RC, so the RC-loss action NAV_RCL_ACT follows (default 2, Return).  Return needs a home
+        position, which the vehicle has from arming."""
+        action = int(params["COM_OBL_RC_ACT"][0])
+        if action in self._OBL:
+            return self._OBL[action]
+        return self._RCL.get(int(params["NAV_RCL_ACT"][0]), ("AUTO.RTL", "RTL"))
+
+
+class ArduCopter(Personality):
+    def land_detector(self):
+        return ArduCopterLandDetector()
+
+    def disarm_allowed(self, ld):
+        # AP_Arming_Copter::disarm: "do not allow disarm via mavlink if we think we are flying"
+        return ld.landed
+
+    def auto_disarm(self, params, t, armed_t, taken_off, landed_since):
+        """Copter::auto_disarm_check (motors.cpp): landed, motors at ground idle and throttle
+        low for DISARM_DELAY s (0 disables), whatever the mode."""
+        delay = float(params["DISARM_DELAY"][0])
+        if delay > 0.0 and landed_since is not None and t - landed_since >= delay - 1e-9:
+            return "disarm_delay"
+        return None
+
+    def armed_text(self):
+        return "Arming motors"  # AP_Arming_Copter::arm (sent by SITL builds)
+
+    def disarmed_text(self, reason):
+        return "Disarming motors"
+
+    def interval_refused_text(self, msgid):
+        # GCS_MAVLINK::set_message_interval, SITL builds
+        return f"No ap_message for mavlink id ({msgid})"
 
 
 _CAPS = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
@@ -92,10 +385,19 @@ def px4():
     params = [
         ("MAV_SYS_ID", 1, INT),
         ("COM_OF_LOSS_T", 1.0, REAL),
-        ("COM_OBL_RC_ACT", 0, INT),  # 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold
+        # 0 Position, 1 Altitude, 2 Stabilized (these three need RC: NAV_RCL_ACT follows),
+        # 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm
+        ("COM_OBL_RC_ACT", 0, INT),
+        ("NAV_RCL_ACT", 2, INT),  # 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Disarm
         ("COM_DISARM_LAND", 2.0, REAL),
         ("COM_DISARM_PRFLT", 10.0, REAL),
+        ("COM_SPOOLUP_TIME", 1.0, REAL),  # motors at idle after arming (position control)
         ("MPC_THR_HOVER", 0.5, REAL),
+        ("MPC_THR_MIN", 0.12, REAL),  # land detector thresholds
+        ("MPC_MANTHR_MIN", 0.08, REAL),
+        ("LNDMC_Z_VEL_MAX", 0.25, REAL),
+        ("LNDMC_XY_VEL_MAX", 1.5, REAL),
+        ("LNDMC_ROT_MAX", 20.0, REAL),
         ("MPC_TKO_SPEED", 1.5, REAL),
         ("MPC_LAND_SPEED", 0.7, REAL),
         ("MPC_XY_VEL_MAX", 12.0, REAL),
@@ -103,12 +405,41 @@ def px4():
         ("RTL_RETURN_ALT", 30.0, REAL),
         ("SYS_AUTOSTART", 4001, INT),
     ] + _WIND_PARAMS
-    return Personality("px4", mavlink.MAV_AUTOPILOT_PX4, modes, "AUTO.LOITER", params,
-                       _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, True,
-                       (1 << 24) | (15 << 16) | (0 << 8) | 255,
-                       mode_aliases={"HOLD": "AUTO.LOITER", "POSITION": "POSCTL",
-                                     "LAND": "AUTO.LAND", "TAKEOFF": "AUTO.TAKEOFF",
-                                     "RTL": "AUTO.RTL", "RETURN": "AUTO.RTL"})
+    return PX4("px4", mavlink.MAV_AUTOPILOT_PX4, modes, "AUTO.LOITER", params,
+               _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, True,
+               (1 << 24) | (15 << 16) | (0 << 8) | 255,
+               mode_aliases={"HOLD": "AUTO.LOITER", "POSITION": "POSCTL",
+                             "LAND": "AUTO.LAND", "TAKEOFF": "AUTO.TAKEOFF",
+                             "RTL": "AUTO.RTL", "RETURN": "AUTO.RTL"},
+               # HEARTBEAT is a constant-rate 1 Hz stream and nothing else sends one
+               # (mavlink_main.cpp, streams/HEARTBEAT.hpp)
+               heartbeat_on_mode_change=False,
+               # COM_SPOOLUP_TIME gates mc_pos_control's takeoff (Takeoff.cpp) and manual
+               # throttle (mc_att_control); offboard attitude setpoints go straight to the
+               # attitude controller (mavlink_receiver.cpp handle_message_set_attitude_target)
+               spoolup_param="COM_SPOOLUP_TIME", spoolup_holds_attitude_thrust=False,
+               offboard_loss_param="COM_OF_LOSS_T",
+               # Commander: arming/disarming denied -> TEMPORARILY_REJECTED; mavlink_receiver:
+               # SET_MESSAGE_INTERVAL without such a stream -> FAILED, REQUEST_MESSAGE -> DENIED
+               arming_refused=mavlink.MAV_RESULT_TEMPORARILY_REJECTED,
+               interval_refused=mavlink.MAV_RESULT_FAILED,
+               request_refused=mavlink.MAV_RESULT_DENIED,
+               heartbeat_interval_settable=False,  # set_message_interval: PX4_ERROR
+               disarm_denied_text="Disarming denied: not landed",
+               landing_text="Landing detected", takeoff_text="Takeoff detected")
+
+
+# MAVLink ids with an ap_message (GCS_Common.cpp, map[] in mavlink_id_to_ap_message_id) among
+# those the bundled vehicle builds: no ODOMETRY (ArduPilot only receives it) and no DEBUG_VECT
+_ARDUPILOT_MESSAGES = frozenset((
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, mavlink.MAVLINK_MSG_ID_ATTITUDE,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+    mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+))
 
 
 def ardupilot():
@@ -133,12 +464,31 @@ def ardupilot():
         ("PILOT_SPEED_DN", 150, INT),  # cm/s
         ("LAND_SPEED", 50, INT),  # cm/s
         ("WPNAV_SPEED_UP", 250, REAL),  # cm/s
-        ("DISARM_DELAY", 10, INT),
+        ("DISARM_DELAY", 10, INT),  # s landed before disarming by itself (0: never)
         ("RTL_ALT", 1500, INT),  # cm
+        ("ATC_ANGLE_BOOST", 1, INT),  # GUIDED thrust (GUID_OPTIONS bit 3) x 1/cos(tilt)
+        # ArduCopter's ARMING_DELAY_SEC is a compile-time constant (ArduCopter/config.h, 2 s),
+        # not a parameter; the bundled vehicle offers it as a simulator parameter
+        ("SIM_ARMING_DELAY", 2.0, REAL),
     ] + _WIND_PARAMS
-    return Personality("ardupilot", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, modes, "STABILIZE",
-                       params, _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST, False,
-                       (4 << 24) | (6 << 16) | (0 << 8) | 255)
+    return ArduCopter("ardupilot", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, modes, "STABILIZE",
+                      params, _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST, False,
+                      (4 << 24) | (6 << 16) | (0 << 8) | 255,
+                      sysid_param="SYSID_THISMAV", hover_param="MOT_THST_HOVER",
+                      # Copter::set_mode ends with gcs().send_message(MSG_HEARTBEAT); arming
+                      # and disarming send none
+                      heartbeat_on_mode_change=True,
+                      # motors.cpp: no motor interlock during the arming delay (motors shut
+                      # down, whatever is asked)
+                      spoolup_param="SIM_ARMING_DELAY", spoolup_holds_attitude_thrust=True,
+                      offboard_loss_param=None,
+                      # GCS_MAVLINK::handle_command_component_arm_disarm: FAILED;
+                      # set_message_interval without an ap_message: DENIED;
+                      # handle_command_request_message without one: FAILED
+                      arming_refused=mavlink.MAV_RESULT_FAILED,
+                      interval_refused=mavlink.MAV_RESULT_DENIED,
+                      request_refused=mavlink.MAV_RESULT_FAILED,
+                      heartbeat_interval_settable=True, messages=_ARDUPILOT_MESSAGES)
 
 
 def personality(name):

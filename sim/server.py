@@ -12,6 +12,12 @@ lockstep the vehicle advances by one ``lockstep_dt`` for each setpoint that arri
 closed loop runs as fast as both sides allow and gives the same flight for the same seed; if
 setpoints stop for ``lockstep_timeout`` (10 s) of wall time while armed, the offboard-loss failsafe
 engages and the clock falls back to real time so the vehicle can carry it out.
+
+The autopilot around the vehicle is as unkind as the real ones (rules in :mod:`sim.personality`):
+HEARTBEAT at 1 Hz of vehicle time (PX4 sends no extra one when the mode or the arming changes,
+ArduPilot one at a mode change), motors held at idle for a while after arming, the autopilot's
+own land detector behind EXTENDED_SYS_STATE, disarm refusals and automatic disarming, the
+offboard-loss failsafe without RC, and TIMESYNC on the vehicle's clock.
 """
 
 import logging
@@ -28,6 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from . import personality as PP
 from . import physics as phys
 from . import wind as W
+from .firmware import position as PL
 
 log = logging.getLogger("mavadrc.sitl")
 
@@ -195,7 +202,7 @@ class SitlServer:
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
                  lockstep_timeout=10.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
                  host="127.0.0.1", offboard_port=None, gcs_port=None, bind_offboard=None,
-                 bind_gcs=None):
+                 bind_gcs=None, params=None):
         self.vehicle = vehicle
         self.ap = PP.personality(autopilot)
         self.instance = int(instance)
@@ -207,22 +214,26 @@ class SitlServer:
         self.home = tuple(float(v) for v in home)
         self.stats = Stats()
         self.params = {name: (default, ptype) for name, default, ptype in self.ap.params}
-        self.params["MAV_SYS_ID" if autopilot == "px4" else "SYSID_THISMAV"] = (self.sysid, PP.INT)
-        hover_name = "MPC_THR_HOVER" if autopilot == "px4" else "MOT_THST_HOVER"
-        self.params[hover_name] = (float(vehicle.hover_thrust), PP.REAL)
+        self.params[self.ap.sysid_param] = (self.sysid, PP.INT)
+        self.params[self.ap.hover_param] = (float(vehicle.hover_thrust), PP.REAL)
         self._param_names = [name for name, _, _ in self.ap.params]
+        for name, value in (params or {}).items():
+            self.params[name] = (parse_param(self.ap, name, value), self.params[name][1])
         self._signing_key = signing_key
         self._boot_wall = time.time()
         self.mode = self.ap.mode(self.ap.initial_mode)
         self.failsafe = False
         self._last_setpoint_t = -math.inf  # vehicle time of the last proof-of-life setpoint
         self._last_setpoint_wall = -math.inf
-        self._airborne_since_arm = False
+        self._taken_off = False  # the land detector saw a take-off since arming
         self._armed_t = 0.0
-        self._landed_t = None
+        self._landed_since = None  # vehicle time the land detector last declared landing
+        self._ld = self.ap.land_detector()
+        self._spool_until = -math.inf  # motors held at idle after arming until then
+        self._deferred = None  # what the last setpoint or takeoff asked for while held at idle
         self._rtl_phase = None
-        self._guided_att = None  # ArduPilot attitude target held with a climb-rate thrust
-        self._following_attitude = False  # ArduPilot: attitude targets are streaming (GUID_TIMEOUT)
+        self._guided = None  # ArduPilot GUIDED attitude target (see _guided_output)
+        self._climb_i = 0.0  # ArduPilot GUIDED climb-rate loop integrator (m/s^2)
         self._att_target = (np.array([1.0, 0.0, 0.0, 0.0]), 0.0, np.zeros(3), 0)
         self._statustext_last = {}
         self._pending_steps = 0
@@ -230,9 +241,12 @@ class SitlServer:
         self._running = False
         self._thread = None
         self._last_hb_wall = 0.0
+        self._last_step_wall = 0.0  # lockstep: wall time the clock last advanced
         self._last_hb_t = -10**9
         self._base_wind = vehicle.wind
-        vehicle.auto_disarm_s = None  # the autopilot disarms after landing (COM_DISARM_LAND)
+        if any(name.startswith("SIM_WIND_") for name in (params or {})):
+            self._update_gcs_wind(announce=False)
+        vehicle.auto_disarm_s = None  # the autopilot disarms by itself (auto_disarm)
         self.links = []
         off_remote = (host, 14540 + self.instance if offboard_port is None else offboard_port)
         gcs_remote = (host, 14550 if gcs_port is None else gcs_port)
@@ -246,6 +260,7 @@ class SitlServer:
             mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
             if signing_key is not None:
                 self._setup_signing(mav)
+            rates = {mid: hz for mid, hz in rates.items() if self.ap.sends(mid)}
             self.links.append(Link(name, sock, remote, mav, rates))
         self._apply_mode_behaviour()
 
@@ -314,6 +329,8 @@ class SitlServer:
             for sock in readable:
                 self._drain(sock)
             if self.lockstep and not self._lockstep_stalled():
+                if self._pending_steps > 0:
+                    self._last_step_wall = time.monotonic()
                 while self._pending_steps > 0:
                     self._pending_steps -= 1
                     self.advance(self.lockstep_dt)
@@ -335,8 +352,11 @@ class SitlServer:
         return time.monotonic() - self._last_setpoint_wall > self.lockstep_timeout
 
     def _wall_heartbeat(self):
+        """Lockstep with the clock stopped (no setpoints yet, or a pause): a heartbeat each second
+        of wall time, so that a client can connect before it streams.  While the clock runs,
+        heartbeats keep to 1 Hz of vehicle time."""
         now = time.monotonic()
-        if now - self._last_hb_wall >= 1.0:
+        if now - max(self._last_hb_wall, self._last_step_wall) >= 1.0:
             self._send_all(self._heartbeat())
             self._last_hb_wall = now
 
@@ -413,9 +433,13 @@ class SitlServer:
 
     def advance(self, dt):
         """Advance the vehicle by dt and do everything the autopilot does per step."""
-        self._guided_thrust()
+        if self._deferred is not None and not self._spooling():
+            apply, self._deferred = self._deferred, None
+            apply()
+        self._guided_output(dt)
         self.vehicle.step(dt)
         self._rep = None
+        self._detect_landing(dt)
         self._supervise()
         self._send_due()
 
@@ -424,16 +448,61 @@ class SitlServer:
             return float(self.params["COM_OF_LOSS_T"][0])
         return float(self.params["GUID_TIMEOUT"][0])
 
+    # --- what the autopilot does by itself -------------------------------------------------------
+
+    def _spooling(self):
+        """The motors are still held at idle after arming (the personality's spoolup_param)."""
+        return self.vehicle.armed and self.vehicle.time < self._spool_until - 1e-9
+
+    def _when_spooled(self, apply):
+        """Carry out a setpoint or takeoff now, or once the motors are free if they are still held
+        at idle after arming (the last request wins)."""
+        if self._spooling():
+            self._deferred = apply
+        else:
+            self._deferred = None
+            apply()
+
+    def _detect_landing(self, dt):
+        """Run the personality's land detector on this step; announce and time its changes."""
+        v = self.vehicle
+        r = self._reported()
+        q_sp, thrust = v.attitude_setpoint
+        climb_rate_control = v.mode != "attitude"
+        in_descend = True  # landing, or idle on the ground
+        if v.mode in ("position", "hold", "takeoff"):
+            sp = v.nav.sp
+            vz = sp[PL.PSP_VEL + 2] if math.isfinite(sp[PL.PSP_VEL + 2]) else 0.0
+            if math.isfinite(sp[PL.PSP_POS + 2]):
+                vz += v.nav.pp[PL.PP_KP + 2] * (sp[PL.PSP_POS + 2] - r.position[2])
+            in_descend = vz >= 1.1 * float(self.params.get("LNDMC_Z_VEL_MAX", (0.25,))[0])
+        tilt = math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (q_sp[1] ** 2 + q_sp[2] ** 2))))
+        u = PP.LandInputs(thrust, (float(r.velocity[0]), float(r.velocity[1]),
+                                   float(r.velocity[2])),
+                          math.hypot(r.rates[0], r.rates[1]), tilt, climb_rate_control, in_descend)
+        was = self._ld.landed
+        self._ld.update(dt, self.params, v.armed, u)
+        if not v.armed or was == self._ld.landed:
+            return
+        if self._ld.landed:
+            self._landed_since = v.time
+            if self.ap.landing_text:
+                self.statustext(mavlink.MAV_SEVERITY_INFO, self.ap.landing_text)
+        else:
+            self._landed_since = None
+            self._taken_off = True
+            if self.ap.takeoff_text:
+                self.statustext(mavlink.MAV_SEVERITY_INFO, self.ap.takeoff_text)
+
     def _supervise(self):
         v = self.vehicle
         t = v.time
-        if v.armed and not v.landed:
-            self._airborne_since_arm = True
         # offboard loss
-        watched = self.ap.name == "px4" or self._following_attitude
-        if self.mode.behaviour == PP.OFFBOARD and v.armed and not self.failsafe and watched:
+        if (self.ap.offboard_loss_param and self.mode.behaviour == PP.OFFBOARD and v.armed
+                and not self.failsafe):
             stalled = self.lockstep and self._lockstep_stalled()
-            if stalled or t - self._last_setpoint_t > self._loss_timeout():
+            timeout = float(self.params[self.ap.offboard_loss_param][0])
+            if stalled or t - self._last_setpoint_t > timeout:
                 self._offboard_lost()
         # takeoff complete
         if self.mode.behaviour == PP.TAKEOFF and v.mode == "hold" and self.ap.name == "px4":
@@ -444,48 +513,77 @@ class SitlServer:
             if math.hypot(p[0], p[1]) < 0.5:
                 self._rtl_phase = "land"
                 v.land()
-        # auto-disarm: landed after a flight, or never took off after arming
+        # auto-disarm: the personality's rules (landed for a while, or no takeoff after arming)
         if v.armed:
-            if v.landed and self._airborne_since_arm:
-                if self._landed_t is None:
-                    self._landed_t = t
-                delay = float(self.params.get("COM_DISARM_LAND", (2.0,))[0])
-                if t - self._landed_t >= delay:
-                    self._disarm("landed")
-            else:
-                self._landed_t = None
-            prflt = self.params.get("COM_DISARM_PRFLT")
-            if (prflt and not self._airborne_since_arm and prflt[0] > 0
-                    and t - self._armed_t > prflt[0] and self.mode.behaviour != PP.OFFBOARD):
-                self._disarm("no takeoff")
+            why = self.ap.auto_disarm(self.params, t, self._armed_t, self._taken_off,
+                                      self._landed_since)
+            if why is not None:
+                self._disarm(why)
 
     def _offboard_lost(self):
+        """PX4: the offboard-loss failsafe (the personality's offboard_loss_action), announced
+        as PX4 does: the event text, then the STATUSTEXT "Failsafe activated"."""
         self.failsafe = True
-        if self.ap.name == "px4":
-            action = int(self.params["COM_OBL_RC_ACT"][0])
-            target = {0: "POSCTL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO.RTL", 4: "AUTO.LAND",
-                      5: "AUTO.LOITER"}.get(action, "AUTO.LAND")
-            self.statustext(mavlink.MAV_SEVERITY_CRITICAL,
-                            f"Failsafe: offboard signal lost, switching to {target}")
-            self._set_mode(self.ap.mode(target))
+        target, action = self.ap.offboard_loss_action(self.params)
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Failsafe activated: switching to {action}")
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Failsafe activated")
+        if target in ("DISARM", "TERMINATE"):
+            self._disarm("failsafe")
         else:
-            # ArduCopter: the attitude target timed out; level off and hold altitude in GUIDED
-            self.statustext(mavlink.MAV_SEVERITY_WARNING, "Guided: target timeout, holding")
-            self._guided_att = None
-            self._following_attitude = False
-            self.failsafe = False
-            self.vehicle.hold()
+            self._set_mode(self.ap.mode(target))
 
-    def _guided_thrust(self):
-        """ArduPilot without GUID_OPTIONS bit 3: thrust is a climb rate; close that loop here."""
-        if self._guided_att is None or not self.vehicle.armed:
+    def _guided_output(self, dt):
+        """ArduCopter's GUIDED attitude control (mode_guided.cpp angle_control_run), each step.
+
+        No new target for GUID_TIMEOUT s: level at the target's heading and hold the climb rate
+        at zero (the thrust, if it was thrust, becomes a climb rate).  On the ground (land
+        detector) without positive thrust or climb: motors at idle.  Otherwise thrust
+        (GUID_OPTIONS bit 3) through the angle boost, or the climb-rate loop."""
+        g = self._guided
+        v = self.vehicle
+        if g is None or not v.armed or self._spooling():
             return
-        q, climb = self._guided_att
-        v = self._reported()
+        if not g.timed_out and v.time - g.t > float(self.params["GUID_TIMEOUT"][0]) + 1e-9:
+            w, x, y, z = g.q
+            yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+            g.q = np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
+            g.rates, g.mask = None, 7
+            g.value, g.use_thrust, g.timed_out = 0.0, False, True
+            self._climb_i = 0.0
+            log.info("GUIDED: no attitude target for GUID_TIMEOUT: level, climb rate zero")
+        if self._ld.landed and not g.value > 0.0:
+            r = self._reported()
+            yaw = float(r.euler[2])
+            v.set_attitude_target([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)], 0.0)
+            self._climb_i = 0.0
+            return
+        thrust = self._angle_boost(g.value) if g.use_thrust else self._climb_thrust(g, dt)
+        v.set_attitude_target(g.q, thrust, body_rates=g.rates, type_mask=g.mask)
+
+    def _angle_boost(self, thrust):
+        """AC_AttitudeControl_Multi::get_throttle_boosted, as GUIDED's set_throttle_out(thrust,
+        true, ...) applies it: thrust x inverted_factor / cos(tilt), where cos(tilt) is the
+        measured cos(roll) cos(pitch), the boost factor clamped to cos >= 0.1 and
+        inverted_factor = clamp(10 cos(tilt), 0, 1); off with ATC_ANGLE_BOOST 0.  The motors clip
+        the result to 0..1."""
+        if int(self.params["ATC_ANGLE_BOOST"][0]):
+            q = self._reported().quaternion
+            c = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
+            thrust = thrust * min(max(10.0 * c, 0.0), 1.0) / min(max(c, 0.1), 1.0)
+        return min(max(thrust, 0.0), 1.0)
+
+    def _climb_thrust(self, g, dt):
+        """GUIDED without GUID_OPTIONS bit 3: thrust is a climb rate; a PI climb-rate loop
+        (its integrator winds the throttle down to its lower limit on the ground, as
+        ArduCopter's, so that the land detector can see a landing)."""
+        r = self._reported()
+        err = g.value + r.velocity[2]  # climb rate asked minus climb rate measured (m/s)
+        self._climb_i = min(max(self._climb_i + 2.0 * err * dt, -phys.GRAVITY), phys.GRAVITY)
         hover = float(self.params["MOT_THST_HOVER"][0])
+        q = g.q
         tilt = max(0.3, 1.0 - 2.0 * (q[1] ** 2 + q[2] ** 2))
-        thrust = hover * (1.0 + 3.0 * (climb + v.velocity[2]) / 9.80665) / tilt
-        self.vehicle.set_attitude_target(q, min(max(thrust, 0.0), 1.0))
+        thrust = hover * (1.0 + (3.0 * err + self._climb_i) / phys.GRAVITY) / tilt
+        return min(max(thrust, 0.0), 1.0)
 
     # --- sending ---------------------------------------------------------------------------------
 
@@ -553,8 +651,9 @@ class SitlServer:
                                                  base, self.mode.custom_mode, status, 3)
 
     def _landed_state(self):
-        v = self.vehicle
-        if v.landed:
+        """EXTENDED_SYS_STATE.landed_state from the autopilot's land detector, not from the
+        vehicle's contact with the ground."""
+        if self._ld.landed:
             return mavlink.MAV_LANDED_STATE_ON_GROUND
         if self.mode.behaviour == PP.TAKEOFF:
             return mavlink.MAV_LANDED_STATE_TAKEOFF
@@ -724,9 +823,9 @@ class SitlServer:
         if cmd == M.MAV_CMD_REQUEST_MESSAGE:
             mid = int(p[0]) if math.isfinite(p[0]) else -1
             if mid in (M.MAVLINK_MSG_ID_HEARTBEAT,):
-                return R, lambda: link.mav.send(self._heartbeat())
-            if self._build(mid) is None:
-                return M.MAV_RESULT_UNSUPPORTED, None
+                return R, lambda: link.mav.send(self._heartbeat())  # at once, either autopilot
+            if not self.ap.sends(mid) or self._build(mid) is None:
+                return self.ap.request_refused, None
             return R, lambda: link.mav.send(self._build(mid))
         if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return R, lambda: link.mav.send(self._build(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
@@ -745,40 +844,53 @@ class SitlServer:
         if not force:
             if not self.mode.armable:
                 self.statustext(M.MAV_SEVERITY_CRITICAL, f"Arming denied: not armable in {self.mode.name}")
-                return M.MAV_RESULT_DENIED
+                return self.ap.arming_refused
             if self.mode.behaviour == PP.OFFBOARD and self.ap.name == "px4" and not self._stream_alive():
                 self.statustext(M.MAV_SEVERITY_CRITICAL, "Arming denied: no offboard signal")
-                return M.MAV_RESULT_DENIED
+                return self.ap.arming_refused
             if not v.landed:
-                return M.MAV_RESULT_DENIED
+                return self.ap.arming_refused
         v.arm()
-        self._airborne_since_arm = False
+        self._taken_off = False
         self._armed_t = v.time
-        self._landed_t = None
+        self._landed_since = v.time if self._ld.landed else None
+        self._spool_until = v.time + max(0.0, float(self.params[self.ap.spoolup_param][0]))
+        self._deferred = None
+        self._climb_i = 0.0
         self.failsafe = False
-        self.statustext(M.MAV_SEVERITY_INFO, "Armed by external command")
-        self._send_all(self._heartbeat())
-        return M.MAV_RESULT_ACCEPTED
+        self.statustext(M.MAV_SEVERITY_INFO, self.ap.armed_text())
+        return M.MAV_RESULT_ACCEPTED  # no heartbeat now: the next 1 Hz one shows it
 
     def _disarm_cmd(self, force):
         M = mavlink
         if not self.vehicle.armed:
             return M.MAV_RESULT_ACCEPTED
-        if not force and not self.vehicle.landed:
-            self.statustext(M.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
-            return M.MAV_RESULT_DENIED
-        self._disarm("external command")
+        if not force and not self.ap.disarm_allowed(self._ld):
+            if self.ap.disarm_denied_text:
+                self.statustext(M.MAV_SEVERITY_CRITICAL, self.ap.disarm_denied_text)
+            return self.ap.arming_refused
+        self._disarm("external")
         return M.MAV_RESULT_ACCEPTED
 
     def _disarm(self, why):
-        self.vehicle.disarm()
-        self._guided_att = None
+        """Disarm (the autopilot's decision: the vehicle's own landed flag is not asked)."""
+        self.vehicle.disarm(force=True)
+        self._guided = None
+        self._deferred = None
+        self._taken_off = False
+        self._landed_since = None
         self.failsafe = False
-        self.statustext(mavlink.MAV_SEVERITY_INFO, f"Disarmed ({why})")
+        self.statustext(mavlink.MAV_SEVERITY_INFO, self.ap.disarmed_text(why))
         if self.mode.behaviour in (PP.LAND, PP.RTL, PP.TAKEOFF):
             self.mode = self.ap.mode(self.ap.initial_mode)
             self._apply_mode_behaviour()
-        self._send_all(self._heartbeat())
+            self._mode_changed()
+
+    def _mode_changed(self):
+        """The mode has just changed: ArduPilot sends a heartbeat at once, PX4 waits for the next
+        one of its 1 Hz stream."""
+        if self.ap.heartbeat_on_mode_change:
+            self._send_all(self._heartbeat())
 
     def _set_mode_cmd(self, p):
         M = mavlink
@@ -808,14 +920,15 @@ class SitlServer:
             return M.MAV_RESULT_TEMPORARILY_REJECTED
         changed = mode is not self.mode
         self.mode = mode
+        if changed:
+            self._deferred = None  # a takeoff or setpoint held back for the spool-up lapses
         if changed or mode.behaviour != PP.OFFBOARD:
             self._apply_mode_behaviour()
         if mode.behaviour != PP.OFFBOARD:
-            self._guided_att = None
-            self._following_attitude = False
+            self._guided = None
         self.failsafe = self.failsafe and mode.behaviour != PP.OFFBOARD
         if changed:
-            self._send_all(self._heartbeat())
+            self._mode_changed()
         return M.MAV_RESULT_ACCEPTED
 
     def _apply_mode_behaviour(self):
@@ -823,8 +936,8 @@ class SitlServer:
         b = self.mode.behaviour
         self._rtl_phase = None
         if b == PP.HOLD:
-            if v.armed and not v.landed:
-                v.hold()
+            if v.armed:
+                v.hold()  # on the ground: idle, whatever offboard thrust was last asked for
         elif b == PP.LAND:
             if v.armed:
                 v.land()
@@ -834,8 +947,11 @@ class SitlServer:
                 alt = max(-p[2], self._rtl_alt())
                 v.set_position_target(pos=np.array([0.0, 0.0, -alt]))
                 self._rtl_phase = "return"
+            elif v.armed:
+                v.hold()
         elif b == PP.TAKEOFF:
-            v.takeoff(float(self.params["MIS_TAKEOFF_ALT"][0]))
+            alt = float(self.params["MIS_TAKEOFF_ALT"][0])
+            self._when_spooled(lambda: v.takeoff(alt))
         elif b == PP.OFFBOARD:
             if v.armed and not v.landed and self.ap.name == "ardupilot":
                 v.hold()
@@ -855,17 +971,18 @@ class SitlServer:
             alt = float(self.params["MIS_TAKEOFF_ALT"][0])
             if math.isfinite(p7) and p7 - self.home[2] >= 1.0:
                 alt = p7 - self.home[2]
+            changed = self.mode is not self.ap.mode("AUTO.TAKEOFF")
             self.mode = self.ap.mode("AUTO.TAKEOFF")
-            v.takeoff(alt)
-            self._send_all(self._heartbeat())
+            self._when_spooled(lambda: v.takeoff(alt))
+            if changed:
+                self._mode_changed()
             return M.MAV_RESULT_ACCEPTED
         if self.mode.behaviour != PP.OFFBOARD:
             return M.MAV_RESULT_FAILED
         if not (math.isfinite(p7) and p7 > 0.0):
             return M.MAV_RESULT_DENIED
-        self._guided_att = None
-        self._following_attitude = False
-        v.takeoff(p7)
+        self._guided = None
+        self._when_spooled(lambda: v.takeoff(p7))
         return M.MAV_RESULT_ACCEPTED
 
     def _set_interval(self, link, msgid, interval_us):
@@ -873,9 +990,14 @@ class SitlServer:
         if not (math.isfinite(msgid) and math.isfinite(interval_us)):
             return M.MAV_RESULT_DENIED
         mid = int(msgid)
-        if self._build(mid) is None and mid != M.MAVLINK_MSG_ID_HEARTBEAT:
-            return M.MAV_RESULT_UNSUPPORTED
-        if mid == M.MAVLINK_MSG_ID_HEARTBEAT:
+        hb = mid == M.MAVLINK_MSG_ID_HEARTBEAT
+        if (not self.ap.sends(mid) or (hb and not self.ap.heartbeat_interval_settable)
+                or (not hb and self._build(mid) is None)):
+            text = self.ap.interval_refused_text(mid)
+            if text:
+                self.statustext(M.MAV_SEVERITY_INFO, text)
+            return self.ap.interval_refused
+        if hb:
             return M.MAV_RESULT_ACCEPTED  # always 1 Hz
         if interval_us < 0:
             link.set_interval(mid, None)
@@ -932,18 +1054,20 @@ class SitlServer:
             self._proof_of_life()
             if not self.vehicle.armed:
                 return None
-            self._following_attitude = True
-            thrust_is_thrust = int(self.params["GUID_OPTIONS"][0]) & 8
-            if mask & AT_THROTTLE or not thrust_is_thrust:
+            use_thrust = bool(int(self.params["GUID_OPTIONS"][0]) & 8) and not mask & AT_THROTTLE
+            th = 0.5 if mask & AT_THROTTLE else thrust
+            if use_thrust:
+                value = thrust
+            else:
                 up = float(self.params["PILOT_SPEED_UP"][0]) / 100.0
                 dn = float(self.params["PILOT_SPEED_DN"][0]) / 100.0
-                th = 0.5 if mask & AT_THROTTLE else thrust
-                climb = (th - 0.5) * 2.0 * (up if th >= 0.5 else dn)
-                qa = q if not mask & AT_ATTITUDE else np.array([1.0, 0.0, 0.0, 0.0])
-                self._guided_att = (qa, climb)
-                self._att_target = (qa, th, rates, mask)
-                return None
-            self._guided_att = None
+                value = (th - 0.5) * 2.0 * (up if th >= 0.5 else dn)
+            qa = np.array([1.0, 0.0, 0.0, 0.0] if mask & AT_ATTITUDE else q, dtype=float)
+            given = (mask & AT_RATES) != AT_RATES
+            self._guided = _GuidedTarget(qa, value, use_thrust, self.vehicle.time,
+                                         rates if given else None, mask & ~AT_THROTTLE)
+            self._att_target = (qa, th, rates, mask)
+            return None
         elif not mask & AT_THROTTLE:
             self._proof_of_life()  # a throttle-ignoring setpoint is not proof of life
         else:
@@ -951,9 +1075,15 @@ class SitlServer:
             self._lockstep_tick()
         self._att_target = (q, thrust, rates, mask)
         if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
-            self.vehicle.set_attitude_target(
-                q, thrust, body_rates=None if (mask & AT_RATES) == AT_RATES else rates,
-                type_mask=mask)
+            def apply():
+                self.vehicle.set_attitude_target(
+                    q, thrust, body_rates=None if (mask & AT_RATES) == AT_RATES else rates,
+                    type_mask=mask)
+            if self.ap.spoolup_holds_attitude_thrust:
+                self._when_spooled(apply)
+            else:
+                self._deferred = None
+                apply()
         return None
 
     def _on_position_target(self, link, msg):
@@ -990,10 +1120,11 @@ class SitlServer:
             self._lockstep_tick()
             return None
         self._proof_of_life()
-        self._guided_att = None
-        self._following_attitude = False
+        self._guided = None
         if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
-            self.vehicle.set_position_target(pos=pos, vel=vel, acc=acc, yaw=yaw, yaw_rate=yaw_rate)
+            # position control waits for the spool-up (PX4 Takeoff.cpp, ArduCopter's interlock)
+            self._when_spooled(lambda: self.vehicle.set_position_target(
+                pos=pos, vel=vel, acc=acc, yaw=yaw, yaw_rate=yaw_rate))
         return None
 
     def _on_set_mode(self, link, msg):
@@ -1009,10 +1140,12 @@ class SitlServer:
         self._set_mode_cmd(p)
 
     def _on_timesync(self, link, msg):
+        """Answer a request (tc1 == 0) with tc1 = the vehicle's own clock in ns since boot, the
+        clock of every time_boot_ms it sends (PX4 mavlink_timesync.cpp: hrt_absolute_time();
+        ArduPilot GCS_MAVLINK::handle_timesync: micros64 at reception)."""
         if msg.tc1 == 0:
-            link.mav.send(mavlink.MAVLink_timesync_message(int(time.monotonic() * 1e9), msg.ts1,
-                                                          msg.get_srcSystem(),
-                                                          msg.get_srcComponent()))
+            tc1 = max(1, int(round(self.vehicle.time * 1e9)))  # 0 would read as a request
+            link.mav.send(mavlink.MAVLink_timesync_message(tc1, msg.ts1))
 
     # parameters
 
@@ -1067,7 +1200,7 @@ class SitlServer:
                 self._update_gcs_wind()
         self._param_value(link, name)
 
-    def _update_gcs_wind(self):
+    def _update_gcs_wind(self, announce=True):
         spd = float(self.params["SIM_WIND_SPD"][0])
         direction = float(self.params["SIM_WIND_DIR"][0])
         turb = float(self.params["SIM_WIND_TURB"][0])
@@ -1079,8 +1212,9 @@ class SitlServer:
             parts.append(W.DrydenTurbulence(w20=turb, seed=self.vehicle.seed))
         extra = W.CompositeWind(parts, seed=self.vehicle.seed) if parts else None
         self.vehicle.wind = W.LayeredWind.over(self._base_wind, extra)
-        self.statustext(mavlink.MAV_SEVERITY_INFO,
-                        f"Wind {spd:.1f} m/s from {direction:.0f} deg, turbulence {turb:.1f}")
+        if announce:
+            self.statustext(mavlink.MAV_SEVERITY_INFO,
+                            f"Wind {spd:.1f} m/s from {direction:.0f} deg, turbulence {turb:.1f}")
 
     # missions: an empty list of every type, so ground stations connect cleanly
 
@@ -1154,6 +1288,39 @@ class SitlServer:
 
 def _near(x, value):
     return math.isfinite(x) and abs(x - value) < 0.5
+
+
+@dataclass
+class _GuidedTarget:
+    """ArduCopter GUIDED's attitude target (mode_guided.cpp guided_angle_state): attitude,
+    thrust or climb rate (m/s), which of the two, vehicle time of the update, body rates."""
+    q: np.ndarray
+    value: float
+    use_thrust: bool
+    t: float
+    rates: list = None
+    mask: int = 7
+    timed_out: bool = False
+
+
+def parse_param(ap, name, value):
+    """The initial value of parameter ``name`` of personality ``ap`` from a number or its text;
+    ValueError for a name the personality does not have or a value its type cannot hold."""
+    types = {n: t for n, _, t in ap.params}
+    if name not in types:
+        raise ValueError(f"unknown parameter {name!r} for the {ap.name} personality "
+                         f"(known: {', '.join(sorted(types))})")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"parameter {name}: {value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"parameter {name}: {value!r} is not a finite number")
+    if types[name] == PP.INT:
+        if x != int(x):
+            raise ValueError(f"parameter {name} is an integer (got {value!r})")
+        return int(x)
+    return x
 
 
 def read_signing_key(path):

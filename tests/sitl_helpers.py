@@ -2,6 +2,7 @@
 
 import math
 import os
+import struct
 import time
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: speak MAVLink 2
@@ -15,12 +16,14 @@ from sim.vehicle import SimVehicle
 
 
 def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_key=None,
-                  wind=None, seed=0, instance=0, **vehicle_kw):
-    """A SitlServer in a thread whose offboard link sends to a free port; returns (server, port)."""
+                  wind=None, seed=0, instance=0, params=None, **vehicle_kw):
+    """A SitlServer in a thread whose offboard link sends to a free port; returns (server, port).
+    ``params``: initial values of the autopilot's parameters ({NAME: value})."""
     port = free_udp_port()
     v = SimVehicle(vehicle, wind=wind, seed=seed, **vehicle_kw)
     srv = SitlServer(v, autopilot, instance, lockstep=lockstep, signing_key=signing_key,
-                     bind_offboard=0, bind_gcs=0, offboard_port=port, gcs_port=free_udp_port())
+                     bind_offboard=0, bind_gcs=0, offboard_port=port, gcs_port=free_udp_port(),
+                     params=params)
     srv.start()
     return srv, port
 
@@ -71,6 +74,96 @@ class Client:
 
     def close(self):
         self.c.close()
+
+
+class Lockstep:
+    """Drives a lockstep vehicle (``start_vehicle(lockstep=True)``: each setpoint advances it one
+    ``dt_ms``).  ``step`` sends one setpoint and returns that step's LOCAL_POSITION_NED; every
+    message received is kept in ``log`` as (vehicle time in ms, message), HEARTBEATs with the
+    exact step they were sent in (they leave before the step's telemetry)."""
+
+    def __init__(self, client, dt_ms=10):
+        self.c = client
+        self.dt_ms = dt_ms
+        self.t_ms = 0
+        self.log = []
+        assert self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, dt_ms * 1000) == 0
+
+    def _recv(self, end):
+        m = self.c.c.recv_match(blocking=True, timeout=max(0.01, end - time.monotonic()))
+        if m is not None:
+            self.log.append((self.t_ms, m))
+        return m
+
+    def command(self, cmd, *params, timeout=3.0):
+        """COMMAND_LONG; its result (the messages that come meanwhile are logged)."""
+        p = list(params) + [0.0] * (7 - len(params))
+        self.c.mav.command_long_send(self.c.c.target_system, 1, cmd, 0, *p)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self._recv(end)
+            if m is not None and m.get_type() == "COMMAND_ACK" and m.command == cmd:
+                return m.result
+        raise AssertionError(f"no COMMAND_ACK for command {cmd}")
+
+    def param(self, name, value=None, ptype=mavlink.MAV_PARAM_TYPE_REAL32, timeout=3.0):
+        """Read (or set, then read back) a parameter; its value (INT32 of a PX4 vehicle decoded)."""
+        if value is None:
+            self.c.mav.param_request_read_send(self.c.c.target_system, 1, name.encode(), -1)
+        else:
+            raw = float(value)
+            if ptype == mavlink.MAV_PARAM_TYPE_INT32 and self.bytewise:
+                raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+            self.c.mav.param_set_send(self.c.c.target_system, 1, name.encode(), raw, ptype)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self._recv(end)
+            if m is not None and m.get_type() == "PARAM_VALUE" and m.param_id == name:
+                if m.param_type == mavlink.MAV_PARAM_TYPE_INT32 and self.bytewise:
+                    return struct.unpack("<i", struct.pack("<f", m.param_value))[0]
+                return m.param_value
+        raise AssertionError(f"no PARAM_VALUE for {name}")
+
+    @property
+    def bytewise(self):
+        return self.c.c.messages.get("HEARTBEAT") is not None and \
+            self.c.c.messages["HEARTBEAT"].autopilot == mavlink.MAV_AUTOPILOT_PX4
+
+    def step(self, q=(1.0, 0.0, 0.0, 0.0), thrust=0.0, mask=7, position=None):
+        """One setpoint (attitude, or a position target if ``position`` is given), one step."""
+        if position is not None:
+            self.c.position(*position)
+        else:
+            self.c.attitude(q=q, thrust=thrust, mask=mask)
+        self.t_ms += self.dt_ms
+        end = time.monotonic() + 5.0
+        while True:
+            m = self._recv(end)
+            assert m is not None, f"no telemetry for t = {self.t_ms} ms"
+            if m.get_type() == "LOCAL_POSITION_NED" and m.time_boot_ms >= self.t_ms:
+                assert m.time_boot_ms == self.t_ms
+                return m
+
+    def run(self, seconds, until=None, **setpoint):
+        """Step for ``seconds`` (or until ``until(lpn)`` holds); the last LOCAL_POSITION_NED."""
+        m = None
+        for _ in range(int(round(seconds * 1000 / self.dt_ms))):
+            m = self.step(**setpoint)
+            if until is not None and until(m):
+                break
+        return m
+
+    def messages(self, type, since_ms=-1):
+        return [(t, m) for t, m in self.log if t > since_ms and m.get_type() == type]
+
+    def texts(self, since_ms=-1):
+        return [(t, m.text) for t, m in self.messages("STATUSTEXT", since_ms)]
+
+    def landed_state(self):
+        """The last EXTENDED_SYS_STATE.landed_state received (None before one)."""
+        got = self.messages("EXTENDED_SYS_STATE")
+        return got[-1][1].landed_state if got else None
 
 
 def px4_mode(main, sub=0):
