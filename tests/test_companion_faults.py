@@ -1,0 +1,513 @@
+"""`mavadrc fly` against the faults of a real link and a real autopilot.
+
+Each test flies the companion, over MAVLink, against the bundled vehicle behaving like the real
+autopilots (1 Hz heartbeats, PX4's failsafes, ArduCopter's arming delay and landing detector),
+through the lossy-link proxy of ``tests/lossy_link.py`` where the fault is the link's: lost
+samples, lost commands and answers, a blackout, a NaN in one sample, a slow stream.  The flights
+are in real time (a proxy cannot delay a lockstep clock), on a short hover in a 1 m/s breeze.
+"""
+
+import io
+import json
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from lossy_link import start_lossy_vehicle
+from pymavlink import mavutil
+from sitl_helpers import Client, start_vehicle, wait_until
+
+from mavadrc.flight import Flight
+from mavadrc.fly import UsageError, fly
+from mavadrc.link import FlightError, Link, LinkError
+from mavadrc.mission import load_mission
+from mavadrc.record import FlightRecord, read_table
+
+M = mavutil.mavlink
+
+SHORT = """name: short hover
+vehicle: crazyflie
+controller: {type: ladrc, rate_hz: 100}
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 1.0}
+  - hover: {duration: HOVER}
+  - land: {speed: 0.6}
+wind: breeze_1ms
+safety: {geofence: {north: [-5, 5], east: [-5, 5]}, altitude: {max: 5}}
+"""
+#: the bundled PX4 without its spool-up wait, to keep real-time tests short
+FAST_PX4 = {"COM_SPOOLUP_TIME": 0.0}
+
+
+def short_mission(tmp_path, hover=3, extra=""):
+    path = tmp_path / f"short{hover}.yaml"
+    path.write_text(SHORT.replace("HOVER", str(hover)) + extra)
+    return load_mission(path)
+
+
+def fly_through(link, mission, tmp_path, **kw):
+    out = io.StringIO()
+    kw.setdefault("timeout", 90.0)
+    summary, folder = fly(mission, connect=link.companion_url, out=tmp_path / "runs",
+                          figures=False, progress=False, stream=out, **kw)
+    return summary, folder, out.getvalue()
+
+
+def lossy_vehicle(**kw):
+    kw.setdefault("wind", "breeze_1ms")
+    kw.setdefault("params", dict(FAST_PX4))
+    return start_lossy_vehicle(**kw)
+
+
+def stop(srv, link):
+    link.stop(check=False)
+    srv.stop()
+
+
+# --- samples lost, late, broken ------------------------------------------------------------------
+
+
+def test_five_percent_telemetry_loss_keeps_the_error_within_twice_the_clean_flight(tmp_path):
+    mission = short_mission(tmp_path)
+    srv, link = lossy_vehicle(link_seed=1)
+    try:
+        clean, _, _ = fly_through(link, mission, tmp_path)
+    finally:
+        stop(srv, link)
+    srv, link = lossy_vehicle(link_seed=2)
+    try:
+        link.down.loss = 0.05
+        lossy, _, _ = fly_through(link, mission, tmp_path)
+    finally:
+        stop(srv, link)
+    assert clean["landed"] and lossy["landed"], (clean["aborted"], lossy["aborted"])
+    assert lossy["max_error_m"] <= 2.0 * clean["max_error_m"], (lossy["max_error_m"],
+                                                                 clean["max_error_m"])
+    # every missing sample is counted, and the loss is reported as it was
+    assert 0.03 < lossy["link"]["loss_fraction"] < 0.08
+    assert lossy["missed_periods"] > 0.03 * lossy["samples"]
+    assert clean["missed_periods"] < 0.005 * clean["samples"]
+
+
+def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
+    srv, link = lossy_vehicle(link_seed=3)
+    try:
+        link.down.loss = 0.2
+        link.up.loss = 0.2  # stream requests and commands are lost too
+        summary, folder, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    if summary["landed"]:
+        assert summary["max_error_m"] < 0.5
+    assert 0.1 < summary["link"]["loss_fraction"] < 0.3
+    assert "lost" in text  # the console said so
+
+
+def test_one_nan_sample_changes_nothing_visible(tmp_path):
+    srv, link = lossy_vehicle(link_seed=4)
+    try:
+        link.inject_nan(nth=400, fields=("x", "vz"))
+        summary, folder, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["landed"] and summary["aborted"] == []
+    assert summary["link"]["dropped_nonfinite"] == 1
+    assert summary["max_error_m"] < 0.1
+    table = read_table(folder / "controller.csv")
+    assert np.isfinite(table["pos_x"]).all() and np.isfinite(table["thrust"]).all()
+
+
+def test_a_short_gap_is_bridged_without_a_jump(tmp_path):
+    """0.3 s without samples in the hover: the observers predict with the input they applied
+    and resume correcting; before the fix z3_x jumped from -1.69 to +194 m/s^2."""
+    srv, link = lossy_vehicle(link_seed=5)
+    try:
+        link.blackout(0.0, 0.3, direction="down", after_lpn=450)
+        summary, folder, _ = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["landed"], summary["aborted"]
+    assert 0.28 < summary["link"]["longest_gap_s"] < 0.5
+    tab = read_table(folder / "controller.csv")
+    gap = int(np.argmax(np.diff(tab["t"])))
+    for a in "xyz":
+        z3 = tab[f"z3_{a}"]
+        assert abs(z3[gap + 1] - z3[gap]) < 0.5, (a, z3[gap], z3[gap + 1])
+        assert np.abs(tab[f"acc_cmd_{a}"][gap:gap + 20]).max() < 5.0
+
+
+def test_a_stream_at_half_the_rate_is_flown_at_that_rate_and_said(tmp_path):
+    """The autopilot streams LOCAL_POSITION_NED at 50 Hz where 100 Hz was asked (here the
+    proxy rewrites the request): the flight measures it, says so and steps at 50 Hz."""
+    srv, link = lossy_vehicle(link_seed=6)
+
+    def halve(msg, direction):
+        if direction == "up" and msg.get_type() == "COMMAND_LONG" and msg.command == 511 \
+                and int(msg.param1) == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            msg.param2 = 20000.0
+        return msg
+
+    link.hook = halve
+    try:
+        summary, folder, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert "not the 100 Hz asked" in text
+    assert summary["rate_hz"] == pytest.approx(50.0, abs=1.0)
+    assert summary["landed"] and summary["max_error_m"] < 0.15
+    assert summary["missed_periods"] <= 2
+
+
+def test_lost_stream_requests_are_sent_again(tmp_path):
+    srv, link = lossy_vehicle(link_seed=7)
+    rule = link.drop_command(M.MAV_CMD_SET_MESSAGE_INTERVAL, n=2)
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert rule.dropped == 2
+    assert summary["streams"]["LOCAL_POSITION_NED"] == "ACCEPTED"
+    assert summary["rate_hz"] == 100.0 and summary["landed"]
+
+
+def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
+    """Every SET_MESSAGE_INTERVAL lost: the vehicle keeps its 30 Hz default; never a 100 Hz
+    law on 30 Hz samples in silence."""
+    srv, link = lossy_vehicle(link_seed=8)
+    link.drop_messages("COMMAND_LONG", direction="up", command=M.MAV_CMD_SET_MESSAGE_INTERVAL)
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert "not the 100 Hz asked" in text
+    assert summary["rate_hz"] == pytest.approx(30.0, abs=1.5)
+    assert summary["streams"]["LOCAL_POSITION_NED"] == "no answer"
+    assert summary["landed"]
+
+
+# --- the link cut --------------------------------------------------------------------------------
+
+
+def test_a_two_second_blackout_ends_on_the_ground_disarmed(tmp_path):
+    srv, link = lossy_vehicle(link_seed=9)
+    on_ground = {}
+
+    def watch():
+        t0 = None
+        while "done" not in on_ground:
+            if t0 is None and link.in_blackout("down"):
+                t0 = time.monotonic()
+            v = srv.vehicle
+            if t0 is not None and not v.armed and v.landed and "at" not in on_ground:
+                on_ground["at"] = time.monotonic() - t0
+            time.sleep(0.01)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    link.blackout(0.0, 2.0, after_lpn=400)
+    t0 = time.monotonic()
+    try:
+        summary, folder, text = fly_through(link, short_mission(tmp_path, hover=10), tmp_path)
+    finally:
+        on_ground["done"] = True
+        stop(srv, link)
+    took = time.monotonic() - t0
+    assert not summary["landed"]
+    assert any("telemetry lost" in r for r in summary["aborted"])
+    assert on_ground.get("at", math.inf) < 20.0, on_ground
+    assert took < 40.0 + 6.0  # 6 s of setup before the blackout
+    assert summary["disarmed"]
+
+
+# --- commands and their answers ------------------------------------------------------------------
+
+
+def test_a_lost_arm_answer_is_settled_by_the_heartbeat(tmp_path):
+    srv, link = lossy_vehicle(link_seed=10)
+    rule = link.drop_ack(M.MAV_CMD_COMPONENT_ARM_DISARM, n=3)  # every try's answer
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path), tmp_path)
+    finally:
+        stop(srv, link)
+    assert rule.dropped == 3
+    assert "no answer to the arm command" in text
+    assert summary["landed"] and summary["aborted"] == []
+
+
+def test_an_error_in_the_companion_lands_the_vehicle(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = Flight._mission_step
+
+    def flaky(self, s):
+        calls["n"] += 1
+        if calls["n"] == 300:
+            raise RuntimeError("injected")
+        return original(self, s)
+
+    monkeypatch.setattr(Flight, "_mission_step", flaky)
+    srv, link = lossy_vehicle(link_seed=11)
+    try:
+        summary, folder, text = fly_through(link, short_mission(tmp_path, hover=8), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["aborted"] == ["error in the companion: RuntimeError: injected"]
+    assert summary["disarmed"] and not summary["landed"]
+    assert "RuntimeError: injected" in (folder / "companion.log").read_text()
+    assert "Traceback" not in text
+
+
+def test_timeout_covers_the_whole_flight_and_the_landing(tmp_path):
+    srv, link = lossy_vehicle(link_seed=12)
+    t0 = time.monotonic()
+    try:
+        summary, _, _ = fly_through(link, short_mission(tmp_path, hover=30), tmp_path, timeout=6.0)
+    finally:
+        stop(srv, link)
+    assert time.monotonic() - t0 < 6.0 + 35.0
+    assert summary["aborted"][0].startswith("the flight took longer than --timeout")
+    assert summary["disarmed"]
+
+
+# --- one owner -----------------------------------------------------------------------------------
+
+
+def sent_by_companion(folder):
+    """Message types the companion sent in a flight record (component 191), with commands."""
+    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
+    out = []
+    while True:
+        m = log.recv_match(blocking=False)
+        if m is None:
+            return out
+        if m.get_srcComponent() == M.MAV_COMP_ID_ONBOARD_COMPUTER:
+            out.append((m.get_type(), getattr(m, "command", None)))
+
+
+def test_a_second_companion_is_refused_and_the_first_flies_on(tmp_path):
+    srv, link = lossy_vehicle(link_seed=13)
+    mission = short_mission(tmp_path, hover=6)
+    result = {}
+
+    def first():
+        result["summary"] = fly_through(link, mission, tmp_path)[0]
+
+    t = threading.Thread(target=first)
+    t.start()
+    try:
+        assert wait_until(lambda: srv.vehicle.armed and not srv.vehicle.landed, 30.0)
+        time.sleep(1.0)
+        # the same port: refused at once, naming it
+        with pytest.raises(LinkError, match=f"UDP port {link.companion_port} is already in use"):
+            fly(mission, connect=link.companion_url, out=tmp_path / "second", figures=False,
+                progress=False, stream=io.StringIO())
+        # straight to the vehicle: it is armed and in the air, another controller owns it
+        vehicle_port = srv.local_ports["offboard"]
+        with pytest.raises(FlightError, match="another controller owns it"):
+            fly(mission, connect=f"udpout:127.0.0.1:{vehicle_port}", out=tmp_path / "third",
+                figures=False, progress=False, stream=io.StringIO())
+    finally:
+        t.join(90)
+        stop(srv, link)
+    folder = next((tmp_path / "third").iterdir())
+    sent = sent_by_companion(folder)
+    assert not any(t == "SET_ATTITUDE_TARGET" for t, _ in sent)
+    assert not any(c in (M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_COMPONENT_ARM_DISARM) for _, c in sent)
+    assert result["summary"]["landed"] and result["summary"]["aborted"] == []
+    assert result["summary"]["max_error_m"] < 0.1
+
+
+def test_takeover_flies_a_vehicle_in_the_air_from_where_it_is(tmp_path):
+    srv, port = start_vehicle(params=dict(FAST_PX4))
+    c = Client(port)
+    try:
+        c.heartbeat()
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        assert c.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, math.nan) == \
+            M.MAV_RESULT_ACCEPTED
+        assert wait_until(lambda: -srv.vehicle.state[2] > 2.4 and abs(srv.vehicle.state[5]) < 0.05,
+                          20.0)  # up at MIS_TAKEOFF_ALT (2.5 m), holding
+        c.close()
+        mission = short_mission(tmp_path, hover=2)
+        with pytest.raises(FlightError, match="another controller owns it"):
+            fly(mission, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
+                out=tmp_path / "refused", figures=False, progress=False, stream=io.StringIO())
+        out = io.StringIO()
+        summary, folder = fly(mission, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
+                              out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                              takeover=True, timeout=60.0)
+    finally:
+        srv.stop()
+    assert summary["landed"], (summary["aborted"], out.getvalue())
+    tab = read_table(folder / "controller.csv")
+    # the reference starts where the vehicle was: no jump at the takeover
+    assert np.linalg.norm([tab[f"ref_{a}"][0] - tab[f"pos_{a}"][0] for a in "xyz"]) < 0.05
+    assert tab["pos_z"][0] < -2.4  # taken over up there, not from the ground
+    assert np.abs(tab["pos_z"] - tab["ref_z"]).max() < 0.15
+    assert summary["takeover"] and "no spool-up" not in out.getvalue()
+
+
+# --- takeoff, touchdown, the vehicle's own numbers ----------------------------------------------
+
+
+def test_ardupilot_arming_delay_gives_no_leap_at_lift_off(tmp_path):
+    """ArduCopter keeps the motors at minimum for ARMING_DELAY_SEC (2 s) after arming; the
+    flight waits it out and holds its observers on the ground, so nothing winds up."""
+    mission = load_mission("configs/missions/ardupilot_hover.yaml")
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+                          stream=io.StringIO())
+    assert summary["landed"] and summary["motor_delay_s"] == 2.0
+    tab = read_table(folder / "controller.csv")
+    first = tab["t"] < 2.0
+    assert np.abs(tab["pos_z"][first] - tab["ref_z"][first]).max() < 0.05
+    assert summary["touchdown_speed_mps"] < 0.5
+
+
+def test_a_low_altitude_estimate_still_touches_down_slowly(tmp_path):
+    """The estimate drifts 0.3 m low during the hover (PX4's was 0.29-0.38 m low): the land
+    reference ends 0.3 m up, so the descent goes on until touchdown is seen."""
+    srv, link = lossy_vehicle(link_seed=14)
+    state = {"n": 0}
+
+    def drift(msg, direction):
+        if direction == "down" and msg.get_type() == "LOCAL_POSITION_NED":
+            state["n"] += 1
+            msg.z += 0.3 * min(1.0, max(0.0, (state["n"] - 400) / 100.0))
+        return msg
+
+    link.hook = drift
+    true_vz = []
+
+    def watch():
+        while "done" not in state:
+            true_vz.append((srv.vehicle.landed, float(srv.vehicle.state[5])))
+            time.sleep(0.002)
+
+    w = threading.Thread(target=watch, daemon=True)
+    w.start()
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=4), tmp_path)
+    finally:
+        state["done"] = True
+        stop(srv, link)
+    assert summary["landed"], summary["aborted"]
+    assert summary["touchdown_speed_mps"] < 0.5
+    landing = [vz for (landed, vz) in true_vz if not landed]
+    assert max(landing[-50:]) < 0.5  # the truth, at contact
+    assert "descending until touchdown" in text
+
+
+def test_a_vehicle_facing_south_turns_at_a_bounded_rate(tmp_path):
+    path = tmp_path / "south.yaml"
+    path.write_text(SHORT.replace("HOVER", "3").replace("wind: breeze_1ms\n", "")
+                    + "sim: {heading_deg: 180}\n")
+    summary, folder = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False,
+                          progress=False, stream=io.StringIO())
+    assert summary["landed"]
+    tab = read_table(folder / "controller.csv")
+    ref = np.unwrap(tab["ref_yaw"])
+    assert abs(abs(ref[0]) - math.pi) < 0.01  # starts at the vehicle's heading
+    rate = np.abs(np.diff(ref) / np.diff(tab["t"]))
+    assert rate.max() < math.radians(45.0) * 1.01
+    assert abs(math.remainder(ref[-1], 2 * math.pi)) < 0.01  # and ends at the mission's
+
+
+def test_with_connect_the_hover_thrust_is_the_autopilots(tmp_path):
+    srv, link = lossy_vehicle(link_seed=15, params={**FAST_PX4, "MPC_THR_HOVER": 0.45})
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["hover_thrust"] == pytest.approx(0.45)
+    assert "vehicle: crazyflie names a bundled vehicle: ignored" in text
+    assert "wind: ignored with --connect" in text
+    assert summary["sources"]["hover_thrust"] == "the vehicle's MPC_THR_HOVER"
+
+
+def test_with_connect_input_lag_auto_is_refused_before_anything_is_sent(tmp_path):
+    mission = load_mission("configs/missions/thesis_spiral_wind.yaml")
+    with pytest.raises(UsageError, match="input_lag: auto"):
+        fly(mission, connect="udpin:127.0.0.1:14999", out=tmp_path, stream=io.StringIO())
+    assert not any(tmp_path.iterdir())
+
+
+def test_ardupilot_angle_boost_is_divided_out(tmp_path, monkeypatch):
+    """ArduCopter GUIDED multiplies the thrust of SET_ATTITUDE_TARGET by 1/cos(lean angle)
+    (ATC_ANGLE_BOOST, default 1): sent as computed, the vehicle climbs in every turn.  PD (no
+    observer to absorb it) on a circle leaning 18 deg shows it plainly."""
+    import mavadrc.sequence as S
+
+    path = tmp_path / "circle.yaml"
+    path.write_text("""name: tight circle
+vehicle: crazyflie
+controller: {type: pd}
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 1.0}
+  - circle: {radius: 2.0, speed: 2.5, altitude: 1.0, duration: 8}
+  - land: {speed: 0.6}
+sim: {autopilot: ardupilot}
+safety: {set_guid_options: true}
+""")
+    mission = load_mission(path)
+    compensated, a = fly(mission, out=tmp_path / "a", lockstep=True, figures=False,
+                         progress=False, stream=io.StringIO())
+    monkeypatch.setattr(S.ArduPilotSequence, "thrust_factor", lambda self, flight: 1.0)
+    boosted, b = fly(mission, out=tmp_path / "b", lockstep=True, figures=False, progress=False,
+                     stream=io.StringIO())
+
+    def circling_z_error(folder):
+        tab = read_table(folder / "controller.csv")
+        on = np.array([p == "circle" for p in tab["phase"]])
+        return float(np.sqrt(np.mean((tab["pos_z"][on] - tab["ref_z"][on]) ** 2)))
+
+    err_c, err_b = circling_z_error(a), circling_z_error(b)
+    assert err_b > 0.02  # the boost is there: 1/cos(18 deg) - 1 = 5 % more thrust
+    assert err_c < 0.3 * err_b, (err_c, err_b)
+
+
+# --- signing -------------------------------------------------------------------------------------
+
+
+def test_signed_flight_against_the_signed_bundled_vehicle(tmp_path):
+    key = tmp_path / "key.hex"
+    key.write_text("ab" * 32 + "\n")
+    from mavadrc.fly import read_key
+
+    summary, folder = fly(load_mission("configs/missions/hover.yaml"), out=tmp_path,
+                          lockstep=True, figures=False, progress=False, stream=io.StringIO(),
+                          signing_key=read_key(key))
+    assert summary["landed"] and summary["link"]["bad_signatures"] == 0
+    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
+    m = log.recv_match(type="SET_ATTITUDE_TARGET", blocking=False)
+    assert m is not None and m.get_msgbuf()[2] & M.MAVLINK_IFLAG_SIGNED  # the frame is signed
+
+
+def test_a_wrong_signing_key_hears_nothing(tmp_path):
+    srv, port = start_vehicle(signing_key=b"\x01" * 32)
+    rec = FlightRecord(tmp_path / "r")
+    link = Link(f"udpin:127.0.0.1:{port}", tlog=rec.tlog, signing_key=b"\x02" * 32)
+    try:
+        with pytest.raises(LinkError, match="no heartbeat"):
+            Flight(load_mission("configs/missions/hover.yaml"), link, rec, progress=False,
+                   out=io.StringIO(), heartbeat_timeout=2.0).run()
+        assert link.bad_signatures > 0
+    finally:
+        link.close()
+        rec.close()
+        srv.stop()
+
+
+# --- records -------------------------------------------------------------------------------------
+
+
+def test_summary_is_strict_json_even_when_nothing_flew(tmp_path):
+    rec = FlightRecord(tmp_path / "r")
+    rec.write_summary({"max_error_m": math.nan, "rms": [1.0, math.inf], "ok": np.float64(2.0)})
+    text = (tmp_path / "r" / "summary.json").read_text()
+
+    def refuse(c):
+        raise AssertionError(f"non-standard JSON constant {c}")
+
+    assert json.loads(text, parse_constant=refuse) == {"max_error_m": None, "ok": 2.0,
+                                                       "rms": [1.0, None]}
