@@ -19,10 +19,13 @@ ArduPilot):
 5. **spoolup**: the motors' delay waited out, thrust ramped; the mission clock starts at the end
    of the ramp, or earlier if the vehicle lifts off.
 6. **mission**: the controller flies the trajectory from the ground; until the vehicle has
-   lifted off the observers hold no disturbance estimate.
+   lifted off the vertical observer holds no disturbance estimate.
 7. **touchdown**: the land segment goes on descending slowly until touchdown is seen (the
    autopilot's ON_GROUND, or vertical speed and height settled), then **cut** thrust and
    **disarming**, which follows the autopilot's landing detector.
+
+The phases live in :mod:`mavadrc.preflight` (1-3), :mod:`mavadrc.ground` (4-5, 7) and this
+module (6, the control step); the supervisor's actions in :mod:`mavadrc.failsafe`.
 
 Every phase runs under the :class:`~mavadrc.supervisor.Supervisor`: stale telemetry, a bad
 link, a limit breached, Ctrl-C, ``--timeout``, an error in the companion, a touchdown, disarm or
@@ -41,41 +44,29 @@ import numpy as np
 
 from .console import Console
 from .control import PositionController
-from .link import TIMEOUT, FlightError, LinkError, M, result_name
-from .mission import FINAL_SPEED
+from .failsafe import Failsafes
+from .ground import GroundPhases, level_quat, lifted_off
+from .link import FlightError, LinkError, M
+from .preflight import Preflight
 from .record import Recorder, attitude_oscillation
 from .samples import SampleGate
-from .sequence import sequence_for
-from .supervisor import GIVE_UP, HOLD_THEN_LAND, LAND, WATCH, Supervisor
+from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
 
 TRUE_DIST = "TRUE_DIST"
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
 LOCKSTEP_SPIN_S = 0.002
-#: vehicle time (s) over which the achieved sample rate is measured before arming
-MEASURE_S = 1.0
-#: below this share of the requested rate the flight says so and flies at the rate it gets
-RATE_OK = 0.9
 #: wall time (s) for a mode or arming change to show in the heartbeat once accepted
 CONFIRM_S = 3.0
-#: lift-off: this high above the takeoff spot (m), or climbing faster than this (m/s)
-LIFTOFF_HEIGHT = 0.05
-LIFTOFF_CLIMB = 0.2
-#: ... until the vertical speed stays under this (m/s) for this long (s), the reference below
-SETTLED_SPEED = 0.1
-SETTLED_S = 0.3
 #: the heading turns from the vehicle's to the mission's at this rate (rad/s): PX4's
 #: MPC_YAWRAUTO_MAX default, 45 deg/s
 YAW_RATE = math.radians(45.0)
 #: roll/pitch oscillation (deg) worth a warning
 OSCILLATION_WARN_DEG = 5.0
-#: a failsafe mode command is re-sent this often (s) until the heartbeat shows the mode
-RESEND_S = 1.0
-#: no heartbeat for this long (s) while landing: the vehicle cannot be reached
-UNREACHABLE_S = 10.0
 #: the reference is sampled on the control grid in chunks of this many periods
 GRID_CHUNK = 2048
+
 
 def default_gains(kind):
     """Position-loop gains that suit the bundled vehicles (per axis x, y, z)."""
@@ -135,43 +126,20 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
                               **gains)
 
 
-SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
-
-
-def spool_thrust(t, start_at, hover):
-    """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
-    ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
-    return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
-
-
-def level_quat(yaw):
-    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
-
-
-def wrap_pi(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def lifted_off(height, vz):
-    """Whether a vehicle ``height`` m above its takeoff spot, at vertical speed ``vz`` (NED), has
-    left the ground."""
-    return height >= LIFTOFF_HEIGHT or vz < -LIFTOFF_CLIMB
-
-
-def touchdown_reference(start, speed, tau):
-    """The descent that continues a land segment ending at rest at ``start`` (NED): it speeds up
-    to ``speed`` m/s over 0.5 s and goes on down at that speed; ``tau`` s after its start."""
-    ramp = 0.5
-    if tau < ramp:
-        dz, vz, az = speed * tau * tau / (2.0 * ramp), speed * tau / ramp, speed / ramp
-    else:
-        dz, vz, az = speed * (tau - 0.5 * ramp), speed, 0.0
-    pos = start + np.array([0.0, 0.0, dz])
-    return pos, np.array([0.0, 0.0, vz]), np.array([0.0, 0.0, az])
 
 
 
-class Flight:
+
+
+
+
+
+
+
+
+
+
+class Flight(Preflight, GroundPhases, Failsafes):
     """One flight of a mission over a :class:`~mavadrc.link.Link`.
 
     The flight owns the phases; what differs between autopilots is in its
@@ -183,8 +151,6 @@ class Flight:
     ``hover_source`` says where a given one came from.  ``takeover``: fly a vehicle another
     controller is flying, from where it is.  ``max_wall_s``: ``--timeout``, over every phase.
     """
-
-    CUT_S = 0.5  # thrust ramp down after touchdown
 
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
                  out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0, lockstep=False,
@@ -331,122 +297,6 @@ class Flight:
             raise FlightError(self._error)
         return self.summary
 
-    def _connect(self):
-        # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
-        # while the vehicle comes up; with the hover thrust still to be read, made again after
-        self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
-        timeout = self.heartbeat_timeout
-        if self._deadline is not None:
-            timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))
-        waited = [0]
-
-        def idle():
-            if self.watchdog is not None:
-                self.watchdog()
-            waited[0] += 1
-            if waited[0] in (3, 10, 30):
-                self.say(f"waiting for an autopilot's heartbeat on {self.link.url} "
-                         f"({waited[0] - 1} s)")
-
-        hb = self.link.wait_heartbeat(timeout, idle=idle)
-        self.seq = sequence_for(self.link.autopilot)
-        others = sorted(self.link.systems_heard - {self.link.target_system})
-        self.say(f"connected to system {self.link.target_system} ({self.link.autopilot}, "
-                 f"{self.mode_name(hb.custom_mode)}) on {self.link.url}"
-                 + (f"; also heard system {', '.join(map(str, others))} (--sysid picks one)"
-                    if others else ""))
-
-    def _setup(self):
-        link = self.link
-        self.phase = "setup"
-        self._identify()
-        self._owner_check()
-        if self.hover is None:
-            name = self.seq.hover_param
-            self.hover = float(link.param_read(name))
-            self.sources["hover_thrust"] = f"the vehicle's {name}"
-            self.ctrl = self._make_controller(self.hover)
-        self.say(f"hover thrust {self.hover:.3f} from {self.sources['hover_thrust']}")
-        if self.seq.motor_delay_param is None:
-            self.motor_delay = self.seq.motor_delay_default
-            self.sources["motor_delay"] = f"{self.seq.name}'s arming delay"
-        else:
-            self.motor_delay = max(0.0, float(self.read_param(self.seq.motor_delay_param,
-                                                              self.seq.motor_delay_default)))
-            self.sources["motor_delay"] = self.seq.motor_delay_param
-        self._request_streams()
-        self.seq.preflight(self)  # before the setpoint stream (and a lockstep clock) starts
-        for key in ("angle_boost",):
-            if key in self.sources:
-                self.say(self.sources[key])
-        self.gate.restart(self.h)
-        self._enter("measure", None)
-
-    def read_param(self, name, default):
-        """A parameter of the vehicle, or ``default`` (said so) when it does not answer."""
-        try:
-            value = float(self.link.param_read(name))
-        except LinkError:
-            self.say(f"the vehicle did not answer a read of {name}: using {default:g}")
-            return default
-        return value
-
-    def _identify(self):
-        """AUTOPILOT_VERSION: firmware version, and whether this is the bundled vehicle."""
-        result = self.link.command_wait(M.MAV_CMD_REQUEST_MESSAGE,
-                                        M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, tries=2)
-        end = time.monotonic() + (0.5 if result == M.MAV_RESULT_ACCEPTED else 0.0)
-        while "AUTOPILOT_VERSION" not in self.link.messages and time.monotonic() < end:
-            self.link.recv(0.02)
-        av = self.link.messages.get("AUTOPILOT_VERSION")
-        self.identity = {"autopilot": self.link.autopilot, "system_id": self.link.target_system}
-        if av is not None:
-            v = av.flight_sw_version
-            kinds = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
-            self.identity["firmware_version"] = (
-                f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF} {kinds.get(v & 0xFF, v & 0xFF)}")
-            custom = bytes(av.flight_custom_version).rstrip(b"\0")
-            if self.bundled is None:
-                self.bundled = custom == b"mavadrc"
-        if self.bundled is None:
-            self.bundled = False
-        self.identity["bundled_vehicle"] = self.bundled
-
-    def _owner_check(self):
-        """Armed, in the air or already in the mode that takes setpoints: another controller
-        owns the vehicle.  Refused (nothing sent that changes mode, arming or thrust) unless
-        takeover."""
-        link = self.link
-        hb = link.heartbeat
-        link.command_wait(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, tries=2)
-        end = time.monotonic() + 0.3
-        while "EXTENDED_SYS_STATE" not in link.messages and time.monotonic() < end:
-            link.recv(0.02)
-        ess = link.messages.get("EXTENDED_SYS_STATE")
-        in_air = ess is not None and ess.landed_state not in (M.MAV_LANDED_STATE_ON_GROUND,
-                                                              M.MAV_LANDED_STATE_UNDEFINED)
-        owned = []
-        if link.armed:
-            owned.append("armed")
-        if in_air:
-            owned.append("in the air")
-        if self.seq.in_control(hb):
-            owned.append(f"in {self.mode_name(hb.custom_mode)}")
-        self.takeover_in_air = False
-        if not owned:
-            if self.takeover:
-                self.say("--takeover: the vehicle is on the ground and disarmed, flying as usual")
-                self.takeover = False
-            return
-        what = ", ".join(owned)
-        if not self.takeover:
-            raise FlightError(
-                f"system {link.target_system} is {what}: another controller owns it, so mavadrc "
-                "sent nothing that changes its mode, arming or thrust; land it first, or give "
-                "--takeover to fly it from where it is")
-        self.takeover_in_air = link.armed and (in_air or ess is None)
-        self.say(f"--takeover: system {link.target_system} is {what}; flying it from where it is")
-
     def _make_controller(self, hover):
         ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=self.kind,
                                vehicle=self.m.vehicle, attitude_controller=self.m.attitude_controller,
@@ -455,22 +305,6 @@ class Flight:
         ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         ctrl.reset()
         return ctrl
-
-    def _request_streams(self):
-        rate = self.m.controller.rate_hz
-        wanted = [(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, rate), (M.MAVLINK_MSG_ID_ATTITUDE, rate),
-                  (M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 10.0)]
-        if self.bundled and self.seq.debug_vect:
-            wanted.append((M.MAVLINK_MSG_ID_DEBUG_VECT, rate))  # the simulator's true disturbance
-        for mid in self.seq.unused_streams:
-            wanted.append((mid, 0))  # not used: spare the link
-        self.streams = {}
-        for mid, hz in wanted:
-            result = self.link.set_rate(mid, hz)
-            name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
-            self.streams[name] = result_name(result)
-            if result != M.MAV_RESULT_ACCEPTED and hz > 0:
-                self.say(f"the vehicle answered {result_name(result)} to {name} at {hz:g} Hz")
 
     # --- the loop ------------------------------------------------------------------------------
 
@@ -607,153 +441,14 @@ class Flight:
         if handler is not None:
             handler(s)
 
-    def _ph_measure(self, s):
-        if self._phase_t0 is None:
-            self._phase_t0 = s.t
-            self._start_reference(s)
-        if self.takeover_in_air:
-            self._control_step(s, None, hold=True)
-        else:
-            self._idle(s)
-        if self.gate.span < MEASURE_S or self.gate.received < 5:
-            return
-        self._judge_rate()
-        self._cmd = self.seq.request_control(self.link)
-        self._cmd_tries = 1
-        self._enter("mode", s)
 
-    def _judge_rate(self):
-        """The rate the samples come at, against the one asked for.  Samples lost on the link
-        (gaps in the MAVLink sequence) leave the stream's rate as it is: the steps are timed
-        by the vehicle across the gaps.  A vehicle that sends slower than asked is flown at the
-        rate it sends, and said so.  Below ``safety.min_rate_hz`` the flight is refused."""
-        asked = self.m.controller.rate_hz
-        got = self.gate.achieved_rate()
-        lost = self.link.frame_loss()
-        stream = got / (1.0 - lost) if lost < 0.9 else got
-        seen = (f"{got:.1f} Hz reach us: the vehicle sends {stream:.1f} Hz and "
-                f"{100 * lost:.0f} % of its frames are lost on the link")
-        if got < self.m.safety.min_rate_hz:
-            raise FlightError(f"{seen}, where {asked:g} Hz was asked: below safety.min_rate_hz "
-                              f"{self.m.safety.min_rate_hz:g}, not flying")
-        if stream >= RATE_OK * asked:
-            self.sources["rate"] = f"{asked:g} Hz asked, {got:.1f} Hz measured"
-            if got < RATE_OK * asked:
-                self.sources["rate"] = f"{asked:g} Hz asked; {seen}"
-                self.say(f"warning: {seen}: flying at {asked:g} Hz, each step timed by the "
-                         "vehicle")
-                self.warnings.append(self.sources["rate"])
-            return
-        self.rate = round(stream, 1)
-        self.h = 1.0 / self.rate
-        self.ctrl = self._make_controller(self.hover)
-        self.gate.restart(self.h)
-        self.sources["rate"] = (f"{asked:g} Hz asked; {seen}: flying at {self.rate:g} Hz, each "
-                                "step timed by the vehicle")
-        self.say(f"warning: the samples come at {stream:.1f} Hz, not the {asked:g} Hz asked "
-                 f"({100 * lost:.0f} % lost on the link): flying the controller at "
-                 f"{self.rate:g} Hz")
-        self.warnings.append(self.sources["rate"])
 
-    def _ph_mode(self, s):
-        if self.takeover_in_air:
-            self._control_step(s, None, hold=True)
-        else:
-            self._idle(s)
-        c = self._cmd
-        if c is not None and c.done:
-            self._cmd = None
-            if c.accepted or c.result == TIMEOUT:
-                # accepted: see it in a heartbeat; no answer: the heartbeat settles it
-                self._ask_heartbeat()
-                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
-                if c.result == TIMEOUT:
-                    self.say(f"no answer to the mode change after {c.sent} tries: "
-                             "asking the vehicle for its mode")
-            elif c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
-                self._cmd_tries += 1  # PX4: the setpoint stream is not seen yet
-                self._retry_t = s.t + 0.3
-            else:
-                raise FlightError(f"the vehicle refused {self.seq.control_mode}: "
-                                  f"{result_name(c.result)}{self._because()}")
-        if self._retry_t is not None and s.t >= self._retry_t - 1e-9:
-            self._retry_t = None
-            self._cmd = self.seq.request_control(self.link)
-            return
-        hb = self._fresh()
-        if hb is not None and self.seq.in_control(hb):
-            self._in_control_seen = True
-            self.say(f"in {self.mode_name(hb.custom_mode)}")
-            self._confirm_since = None
-            if self.takeover_in_air:
-                return self._start_mission(s)
-            self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-            self._enter("arming", s)
 
-    def _ph_arming(self, s):
-        self._idle(s)
-        c = self._cmd
-        if c is not None and c.done:
-            self._cmd = None
-            if c.accepted or c.result == TIMEOUT:
-                self._ask_heartbeat()
-                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
-                if c.result == TIMEOUT:
-                    self.say(f"no answer to the arm command after {c.sent} tries: asking the "
-                             "vehicle whether it armed")
-            else:
-                raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
-                                  f"{self._because()}")
-        hb = self._fresh()
-        if hb is not None and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
-            self._confirm_since = None
-            if self.takeover:  # armed on the ground already: the motors are up
-                self.say("armed: flying from the ground, no spool-up")
-                return self._start_mission(s)
-            self.say(f"armed; motors start in {self.motor_delay:g} s "
-                     f"({self.sources.get('motor_delay', 'default')}), then the spool-up")
-            self._enter("spoolup", s)  # from the next sample: one setpoint per sample
 
-    def _because(self):
-        """The vehicle's latest words, if any came in the last seconds."""
-        return f" ({self.texts[-1]})" if self.texts else ""
 
-    def _ph_spoolup(self, s):
-        self._spool(s)
 
-    def _spool(self, s):
-        t_arm = self._phase_t0
-        motors = t_arm + self.motor_delay
-        end = self.start_at if self.start_at is not None else motors + SPOOL_S
-        if self.start_at is not None and motors > self.start_at - SPOOL_S + 1e-9:
-            raise FlightError(f"armed at {t_arm:.3f} s with a {self.motor_delay:g} s motor delay:"
-                              f" too late to start the mission at {self.start_at:.3f} s")
-        self._send(s.t, level_quat(self.yaw), float(spool_thrust(s.t, end, self.hover)))
-        if s.t >= end - 1e-9 or lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
-            self._start_mission(s)  # the controller flies from the next sample
 
-    def _start_reference(self, s):
-        """The mission's frame: from the takeoff spot, or, taking over in the air, as if the
-        takeoff had just ended here."""
-        self.origin = s.pos.copy()
-        if self.takeover_in_air:
-            alt = self.m.segments[0][1]["altitude"]
-            self.origin[2] += alt
-        self.traj, self.phases = self.m.build_trajectory(self.origin,
-                                                         in_air=self.takeover_in_air)
 
-    def _start_mission(self, s):
-        if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
-            self.ctrl.reset(s.pos)
-        self._grid = None
-        self._mission_t0 = s.t
-        self.mission_start = s.t
-        self._lifted = self.takeover_in_air
-        self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
-        self.gate.restart(self.h)
-        self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
-                 f"({self.traj.duration:.1f} s)")
-        self._enter("mission", s)
 
     def _reference(self, t):
         """The reference at mission time ``t``: on the control grid (computed a chunk at a time:
@@ -850,239 +545,6 @@ class Flight:
         self._escalate("left_control",
                        f"the vehicle left {self.seq.control_mode} for {self.mode_name()}")
         return True
-
-    def _ph_touchdown(self, s):
-        if self._left_control():
-            return
-        tau = s.t - self._phase_t0
-        speed = min(FINAL_SPEED, self._land_speed())
-        pos, vel, acc = touchdown_reference(self._descent_from, speed, tau)
-        r = Reference(pos, vel, acc, self._final_yaw, 0.0)
-        t = s.t - self._mission_t0
-        q, thrust = self._control_step(s, r)
-        self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
-        self._descent_history(s)
-        # settled: hardly moving vertically while the reference goes on down below it
-        settled = abs(s.vel[2]) < SETTLED_SPEED and pos[2] > s.pos[2] + 0.05
-        if settled:
-            if self._settled_since is None:
-                self._settled_since = s.t
-        else:
-            self._settled_since = None
-        ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND and \
-            self.landed_state_wall is not None and self.landed_state_wall > self._phase_wall
-        if ground or (self._settled_since is not None and s.t - self._settled_since >= SETTLED_S):
-            # the touchdown speed: the fastest descent in the second before it settled
-            t_settled = self._settled_since if self._settled_since is not None else s.t
-            self.touchdown_speed = max([0.0] + [vz for tt, vz in self._descent
-                                                if t_settled - 1.0 <= tt <= t_settled])
-            self.touchdown_seen = True
-            self.ctrl.hold_disturbance()
-            self._cut_from = thrust
-            self.say(f"touchdown at {self.touchdown_speed:.2f} m/s "
-                     f"({'the autopilot says on the ground' if ground else 'settled'})")
-            if self.touchdown_speed > self.m.safety.max_touchdown_speed:
-                text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
-                        f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
-                self.say(f"warning: {text}")
-                self.warnings.append(text)
-            self._enter("cut", s)
-            return
-        bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
-        if tau > bound:
-            self._escalate("touchdown_timeout",
-                           f"touchdown not seen {bound:.0f} s into the final descent")
-
-    def _descent_history(self, s):
-        self._descent.append((s.t, float(s.vel[2])))
-        while self._descent[0][0] < s.t - 1.5:
-            self._descent.popleft()
-
-    def _land_speed(self):
-        kind, spec, _ = self.m.segments[-1]
-        return float(spec.get("speed", 0.5)) if kind == "land" else 0.5
-
-    def _ph_cut(self, s):
-        k = max(0.0, 1.0 - (s.t - self._phase_t0) / self.CUT_S)
-        self._send(s.t, level_quat(self.yaw), self._cut_from * k)
-        if k <= 0.0:
-            self._enter("disarming", s)
-
-    def _ph_disarming(self, s):
-        self._send(s.t, level_quat(self.yaw), 0.0)
-
-    def _disarm_tick(self, now):
-        """After touchdown and the thrust cut, disarm as the autopilot's landing detector
-        allows: PX4, once it says ON_GROUND (a refusal waits for it; PX4 also disarms itself
-        COM_DISARM_LAND s after landing); ArduPilot, through its land mode
-        (:attr:`~mavadrc.sequence.Sequence.land_to_disarm`).  Bounded at 15 s."""
-        since = now - self._phase_wall
-        if self._confirm_since is None:
-            self._confirm_since = self._phase_wall  # ask for heartbeats until one shows it
-        hb = self.link.heartbeat_since(self._phase_wall)
-        if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
-            self.disarm_confirmed = True
-            self._confirm_since = None
-            self.say("disarmed")
-            if self.seq.in_control(hb):
-                self.link.wait(self.seq.release(self.link))
-            self.phase = "done"
-            return
-        c = self._cmd
-        if self.seq.land_to_disarm:
-            if c is None or (c.done and not c.accepted and now - c.acked_wall > 1.0):
-                if c is None:
-                    self.say(f"on the ground: {self.seq.name}'s land mode disarms it")
-                self._cmd = self.link.command(M.MAV_CMD_NAV_LAND)
-        elif c is None:
-            ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND
-            if ground or since > 3.0 or "EXTENDED_SYS_STATE" not in self.link.messages:
-                self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
-        elif c.done:
-            if not c.accepted and c.result != TIMEOUT and not self._disarm_refused:
-                self._disarm_refused = True
-                self.say(f"disarm refused ({result_name(c.result)}){self._because()}: waiting "
-                         "for the autopilot's landing detector")
-            if now - c.acked_wall > 1.0:
-                self._cmd = None  # ask again
-        if since > 15.0:
-            self._escalate("disarm_timeout", "the vehicle did not disarm within 15 s of touchdown")
-
-    # --- failsafes -------------------------------------------------------------------------------
-
-    def _escalate(self, condition, why):
-        action = self.supervisor.report(condition, why)
-        if action is None:
-            return
-        if action == GIVE_UP:
-            return self._give_up(why)
-        if self.phase in ("setup", "measure", "mode", "arming") or (
-                self.phase == "spoolup" and not self.link.armed):
-            # nothing in the air: a vehicle on the ground is disarmed, not landed
-            return self._ground_abort(why)
-        self.say(f"{why}: {'watching the autopilot land' if action == WATCH else 'landing' if action == LAND else 'hold, then land'}")
-        self._start_failsafe(action)
-
-    def _ground_abort(self, why):
-        """Before lift-off: disarm if armed (confirmed), and end."""
-        self.say(f"{why}: stopping on the ground")
-        self._failsafe = LAND
-        self._failsafe_step = "disarm"
-        self._failsafe_wall = time.monotonic()
-        if not self.link.armed:
-            self.phase = "done"
-
-    def _start_failsafe(self, action):
-        self._failsafe = action
-        self._failsafe_wall = time.monotonic()
-        self._failsafe_sent = 0.0
-        self._hold_point = None
-        if self.phase in ("spoolup",) and not self._lifted:
-            self._failsafe_step = "disarm"
-        elif action == HOLD_THEN_LAND:
-            self._failsafe_step = "hold"
-        elif action == LAND:
-            self._failsafe_step = "land"
-        else:
-            self._failsafe_step = "watch"
-        self.phase = "failsafe"
-        self._failsafe_command(time.monotonic())
-
-    def _failsafe_command(self, now):
-        """(Re-)send the mode the failsafe asks for until a heartbeat newer than it shows it."""
-        step = self._failsafe_step
-        if step == "watch":
-            return
-        if now - self._failsafe_sent < RESEND_S:
-            return
-        hb = self.link.heartbeat_since(self._failsafe_sent) if self._failsafe_sent else None
-        if step == "hold" and hb is not None and (self.seq.is_hold(hb) or self.seq.is_landing(hb)):
-            if now - self._failsafe_wall >= 2.0:
-                self._failsafe_step = "land"
-                self._failsafe_sent = 0.0
-                return self._failsafe_command(now)
-            return
-        if step == "land" and hb is not None and self.seq.is_landing(hb):
-            self._failsafe_step = "watch"
-            self.say(f"the autopilot is in {self.mode_name(hb.custom_mode)}: watching it land")
-            return
-        if step == "disarm" and hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
-            self.phase = "done"
-            return
-        self._failsafe_sent = now
-        if step == "hold":
-            self.seq.request_hold(self.link)
-        elif step == "land":
-            self.link.command(M.MAV_CMD_NAV_LAND)
-        elif step == "disarm":
-            self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
-        self._ask_heartbeat()
-
-    def _failsafe_sample(self, s):
-        """While the failsafe's mode is not yet confirmed, keep the vehicle where it is with our
-        own controller (it is still in our mode); once it is, the autopilot flies."""
-        hb = self.link.heartbeat
-        ours = hb is not None and self.seq.in_control(hb)
-        if self._failsafe_step == "disarm":
-            self._idle(s)
-        elif ours and self._failsafe != WATCH and self.phase == "failsafe" and \
-                self.traj is not None and self.mission_start is not None:
-            self._control_step(s, None, hold=True)
-        elif self.lockstep:
-            self._send(s.t, level_quat(self.yaw), self._setpoint[1])  # the clock must go on
-        self._failsafe_disarmed()
-
-    def _failsafe_tick(self, now):
-        self._failsafe_command(now)
-        hb_age = now - self.link.heartbeat_wall if self.link.heartbeat_wall else math.inf
-        if hb_age > UNREACHABLE_S:
-            return self._escalate("unreachable",
-                                  f"no heartbeat for {hb_age:.0f} s: the vehicle cannot be reached")
-        if self.phase == "done":
-            return
-        bound = self._landing_bound()
-        if now - self._failsafe_wall > bound:
-            self._escalate("landing_timeout",
-                           f"the vehicle has not disarmed {bound:.0f} s after the failsafe began")
-        if self._deadline is not None and now > self._deadline + bound:
-            self._give_up(f"--timeout ({self.max_wall_s:g} s) and the landing bound passed")
-        self._failsafe_disarmed()
-
-    def _failsafe_disarmed(self):
-        """A heartbeat newer than the failsafe shows the vehicle disarmed: the flight is over."""
-        hb = self.link.heartbeat_since(self._failsafe_wall)
-        if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED \
-                and self.phase != "done":
-            self.disarm_confirmed = True
-            self.say("disarmed" + ("" if self._handed_over else f"; {self.last_known()}"))
-            self.phase = "done"
-
-    def _landing_bound(self):
-        """How long the autopilot may take to land and disarm: from the height, at 0.4 m/s
-        (PX4 lands at 0.7, ArduCopter at 0.5), plus 30 s for the detector and the return."""
-        height = 0.0
-        if self.last is not None and self.origin is not None:
-            height = max(0.0, self.origin[2] - self.last.pos[2])
-        return 30.0 + height / 0.4
-
-    def _give_up(self, why):
-        self.supervisor.report("unreachable" if "reach" in why else "landing_timeout", why)
-        self._failsafe = GIVE_UP
-        self.say(f"{why}: giving up; last known: {self.last_known()}")
-        self.phase = "done"
-
-    def last_known(self):
-        """The vehicle's last known state, in a line: "armed, AUTO.LAND, 1.4 m, 3.2 s ago"."""
-        now = time.monotonic()
-        parts = []
-        if self.link.heartbeat is not None:
-            parts.append("armed" if self.link.armed else "disarmed")
-            parts.append(self.mode_name())
-        if self.last is not None and self.origin is not None:
-            parts.append(f"{self.origin[2] - self.last.pos[2]:.1f} m up")
-        if self._last_sample_wall is not None:
-            parts.append(f"{now - self._last_sample_wall:.1f} s ago")
-        return ", ".join(parts) if parts else "nothing heard"
 
     # --- the wall clock ----------------------------------------------------------------------------
 

@@ -42,8 +42,8 @@ from .control import geometry as G
 from .control import kernels as K
 from .control._jit import jit
 from .control.position import position_hold_disturbance, position_update
-from .flight import (LIFTOFF_CLIMB, LIFTOFF_HEIGHT, YAW_RATE, make_controller, spool_thrust,
-                     wrap_pi)
+from .flight import YAW_RATE, make_controller
+from .ground import LIFTOFF_CLIMB, LIFTOFF_HEIGHT, spool_thrust, wrap_pi
 
 #: s of vehicle time at which every run's mission clock starts: after the MAVLink flight has
 #: measured the sample rate (1 s), armed, and waited out PX4's COM_SPOOLUP_TIME (1 s)

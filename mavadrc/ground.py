@@ -1,0 +1,261 @@
+"""The flight's phases on the ground: mode, arming and spool-up before the mission, touchdown,
+thrust cut and disarm after it (:class:`GroundPhases`, a part of :class:`~mavadrc.flight.Flight`).
+
+Mode and arming: each command confirmed by its answer and by a heartbeat newer than it (a lost
+answer is settled by the heartbeat).  Spool-up: the motors' delay waited out, thrust ramped; the
+mission clock starts at the end of the ramp, or earlier if the vehicle lifts off.  Touchdown: the
+land segment's descent goes on slowly until touchdown is seen (the autopilot's ON_GROUND, or
+vertical speed and height settled); then the thrust is cut, and the disarm follows the
+autopilot's landing detector.
+"""
+
+import math
+
+import numpy as np
+
+from .link import TIMEOUT, FlightError, M, result_name
+from .mission import FINAL_SPEED
+from .trajectories import Reference
+
+SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
+#: lift-off: this high above the takeoff spot (m), or climbing faster than this (m/s)
+LIFTOFF_HEIGHT = 0.05
+LIFTOFF_CLIMB = 0.2
+#: touchdown: the vertical speed stays under this (m/s) for this long (s), the reference below
+SETTLED_SPEED = 0.1
+SETTLED_S = 0.3
+CUT_S = 0.5  # thrust ramp down after touchdown
+
+
+def spool_thrust(t, start_at, hover):
+    """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
+    ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
+    return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
+
+
+def level_quat(yaw):
+    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
+
+
+def wrap_pi(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def lifted_off(height, vz):
+    """Whether a vehicle ``height`` m above its takeoff spot, at vertical speed ``vz`` (NED), has
+    left the ground."""
+    return height >= LIFTOFF_HEIGHT or vz < -LIFTOFF_CLIMB
+
+
+def touchdown_reference(start, speed, tau):
+    """The descent that continues a land segment ending at rest at ``start`` (NED): it speeds up
+    to ``speed`` m/s over 0.5 s and goes on down at that speed; ``tau`` s after its start."""
+    ramp = 0.5
+    if tau < ramp:
+        dz, vz, az = speed * tau * tau / (2.0 * ramp), speed * tau / ramp, speed / ramp
+    else:
+        dz, vz, az = speed * (tau - 0.5 * ramp), speed, 0.0
+    pos = start + np.array([0.0, 0.0, dz])
+    return pos, np.array([0.0, 0.0, vz]), np.array([0.0, 0.0, az])
+
+
+class GroundPhases:
+    """Mode, arming, spool-up; touchdown, cut, disarm (methods of
+    :class:`~mavadrc.flight.Flight`)."""
+
+    def _ph_mode(self, s):
+        if self.takeover_in_air:
+            self._control_step(s, None, hold=True)
+        else:
+            self._idle(s)
+        c = self._cmd
+        if c is not None and c.done:
+            self._cmd = None
+            if c.accepted or c.result == TIMEOUT:
+                # accepted: see it in a heartbeat; no answer: the heartbeat settles it
+                self._ask_heartbeat()
+                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
+                if c.result == TIMEOUT:
+                    self.say(f"no answer to the mode change after {c.sent} tries: "
+                             "asking the vehicle for its mode")
+            elif c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
+                self._cmd_tries += 1  # PX4: the setpoint stream is not seen yet
+                self._retry_t = s.t + 0.3
+            else:
+                raise FlightError(f"the vehicle refused {self.seq.control_mode}: "
+                                  f"{result_name(c.result)}{self._because()}")
+        if self._retry_t is not None and s.t >= self._retry_t - 1e-9:
+            self._retry_t = None
+            self._cmd = self.seq.request_control(self.link)
+            return
+        hb = self._fresh()
+        if hb is not None and self.seq.in_control(hb):
+            self._in_control_seen = True
+            self.say(f"in {self.mode_name(hb.custom_mode)}")
+            self._confirm_since = None
+            if self.takeover_in_air:
+                return self._start_mission(s)
+            self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            self._enter("arming", s)
+
+    def _ph_arming(self, s):
+        self._idle(s)
+        c = self._cmd
+        if c is not None and c.done:
+            self._cmd = None
+            if c.accepted or c.result == TIMEOUT:
+                self._ask_heartbeat()
+                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
+                if c.result == TIMEOUT:
+                    self.say(f"no answer to the arm command after {c.sent} tries: asking the "
+                             "vehicle whether it armed")
+            else:
+                raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
+                                  f"{self._because()}")
+        hb = self._fresh()
+        if hb is not None and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
+            self._confirm_since = None
+            if self.takeover:  # armed on the ground already: the motors are up
+                self.say("armed: flying from the ground, no spool-up")
+                return self._start_mission(s)
+            self.say(f"armed; motors start in {self.motor_delay:g} s "
+                     f"({self.sources.get('motor_delay', 'default')}), then the spool-up")
+            self._enter("spoolup", s)  # from the next sample: one setpoint per sample
+
+    def _because(self):
+        """The vehicle's latest words, if any came in the last seconds."""
+        return f" ({self.texts[-1]})" if self.texts else ""
+
+    def _ph_spoolup(self, s):
+        self._spool(s)
+
+    def _spool(self, s):
+        t_arm = self._phase_t0
+        motors = t_arm + self.motor_delay
+        end = self.start_at if self.start_at is not None else motors + SPOOL_S
+        if self.start_at is not None and motors > self.start_at - SPOOL_S + 1e-9:
+            raise FlightError(f"armed at {t_arm:.3f} s with a {self.motor_delay:g} s motor delay:"
+                              f" too late to start the mission at {self.start_at:.3f} s")
+        self._send(s.t, level_quat(self.yaw), float(spool_thrust(s.t, end, self.hover)))
+        if s.t >= end - 1e-9 or lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
+            self._start_mission(s)  # the controller flies from the next sample
+
+    def _start_reference(self, s):
+        """The mission's frame: from the takeoff spot, or, taking over in the air, as if the
+        takeoff had just ended here."""
+        self.origin = s.pos.copy()
+        if self.takeover_in_air:
+            alt = self.m.segments[0][1]["altitude"]
+            self.origin[2] += alt
+        self.traj, self.phases = self.m.build_trajectory(self.origin,
+                                                         in_air=self.takeover_in_air)
+
+    def _start_mission(self, s):
+        if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
+            self.ctrl.reset(s.pos)
+        self._grid = None
+        self._mission_t0 = s.t
+        self.mission_start = s.t
+        self._lifted = self.takeover_in_air
+        self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
+        self.gate.restart(self.h)
+        self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
+                 f"({self.traj.duration:.1f} s)")
+        self._enter("mission", s)
+
+    def _ph_touchdown(self, s):
+        if self._left_control():
+            return
+        tau = s.t - self._phase_t0
+        speed = min(FINAL_SPEED, self._land_speed())
+        pos, vel, acc = touchdown_reference(self._descent_from, speed, tau)
+        r = Reference(pos, vel, acc, self._final_yaw, 0.0)
+        t = s.t - self._mission_t0
+        q, thrust = self._control_step(s, r)
+        self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
+        self._descent_history(s)
+        # settled: hardly moving vertically while the reference goes on down below it
+        settled = abs(s.vel[2]) < SETTLED_SPEED and pos[2] > s.pos[2] + 0.05
+        if settled:
+            if self._settled_since is None:
+                self._settled_since = s.t
+        else:
+            self._settled_since = None
+        ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND and \
+            self.landed_state_wall is not None and self.landed_state_wall > self._phase_wall
+        if ground or (self._settled_since is not None and s.t - self._settled_since >= SETTLED_S):
+            # the touchdown speed: the fastest descent in the second before it settled
+            t_settled = self._settled_since if self._settled_since is not None else s.t
+            self.touchdown_speed = max([0.0] + [vz for tt, vz in self._descent
+                                                if t_settled - 1.0 <= tt <= t_settled])
+            self.touchdown_seen = True
+            self.ctrl.hold_disturbance()
+            self._cut_from = thrust
+            self.say(f"touchdown at {self.touchdown_speed:.2f} m/s "
+                     f"({'the autopilot says on the ground' if ground else 'settled'})")
+            if self.touchdown_speed > self.m.safety.max_touchdown_speed:
+                text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
+                        f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
+                self.say(f"warning: {text}")
+                self.warnings.append(text)
+            self._enter("cut", s)
+            return
+        bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
+        if tau > bound:
+            self._escalate("touchdown_timeout",
+                           f"touchdown not seen {bound:.0f} s into the final descent")
+
+    def _descent_history(self, s):
+        self._descent.append((s.t, float(s.vel[2])))
+        while self._descent[0][0] < s.t - 1.5:
+            self._descent.popleft()
+
+    def _land_speed(self):
+        kind, spec, _ = self.m.segments[-1]
+        return float(spec.get("speed", 0.5)) if kind == "land" else 0.5
+
+    def _ph_cut(self, s):
+        k = max(0.0, 1.0 - (s.t - self._phase_t0) / CUT_S)
+        self._send(s.t, level_quat(self.yaw), self._cut_from * k)
+        if k <= 0.0:
+            self._enter("disarming", s)
+
+    def _ph_disarming(self, s):
+        self._send(s.t, level_quat(self.yaw), 0.0)
+
+    def _disarm_tick(self, now):
+        """After touchdown and the thrust cut, disarm as the autopilot's landing detector
+        allows: PX4, once it says ON_GROUND (a refusal waits for it; PX4 also disarms itself
+        COM_DISARM_LAND s after landing); ArduPilot, through its land mode
+        (:attr:`~mavadrc.sequence.Sequence.land_to_disarm`).  Bounded at 15 s."""
+        since = now - self._phase_wall
+        if self._confirm_since is None:
+            self._confirm_since = self._phase_wall  # ask for heartbeats until one shows it
+        hb = self.link.heartbeat_since(self._phase_wall)
+        if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
+            self.disarm_confirmed = True
+            self._confirm_since = None
+            self.say("disarmed")
+            if self.seq.in_control(hb):
+                self.link.wait(self.seq.release(self.link))
+            self.phase = "done"
+            return
+        c = self._cmd
+        if self.seq.land_to_disarm:
+            if c is None or (c.done and not c.accepted and now - c.acked_wall > 1.0):
+                if c is None:
+                    self.say(f"on the ground: {self.seq.name}'s land mode disarms it")
+                self._cmd = self.link.command(M.MAV_CMD_NAV_LAND)
+        elif c is None:
+            ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+            if ground or since > 3.0 or "EXTENDED_SYS_STATE" not in self.link.messages:
+                self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        elif c.done:
+            if not c.accepted and c.result != TIMEOUT and not self._disarm_refused:
+                self._disarm_refused = True
+                self.say(f"disarm refused ({result_name(c.result)}){self._because()}: waiting "
+                         "for the autopilot's landing detector")
+            if now - c.acked_wall > 1.0:
+                self._cmd = None  # ask again
+        if since > 15.0:
+            self._escalate("disarm_timeout", "the vehicle did not disarm within 15 s of touchdown")

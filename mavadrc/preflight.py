@@ -1,0 +1,202 @@
+"""The flight's first phases: connect, setup, measure (:class:`Preflight`, a part of
+:class:`~mavadrc.flight.Flight`).
+
+Connect: the autopilot's heartbeat names the system flown.  Setup: its identity, who owns it,
+its parameters, the streams (each request confirmed).  Measure: idle setpoints stream while the
+achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rate`).
+"""
+
+import time
+
+
+from .link import FlightError, LinkError, M, result_name
+from .sequence import sequence_for
+
+#: vehicle time (s) over which the achieved sample rate is measured before arming
+MEASURE_S = 1.0
+#: below this share of the requested rate the flight says so and flies at the rate it gets
+RATE_OK = 0.9
+
+
+class Preflight:
+    """Connect, setup and the rate measurement (methods of :class:`~mavadrc.flight.Flight`)."""
+
+    def _connect(self):
+        # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
+        # while the vehicle comes up; with the hover thrust still to be read, made again after
+        self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
+        timeout = self.heartbeat_timeout
+        if self._deadline is not None:
+            timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))
+        waited = [0]
+
+        def idle():
+            if self.watchdog is not None:
+                self.watchdog()
+            waited[0] += 1
+            if waited[0] in (3, 10, 30):
+                self.say(f"waiting for an autopilot's heartbeat on {self.link.url} "
+                         f"({waited[0] - 1} s)")
+
+        hb = self.link.wait_heartbeat(timeout, idle=idle)
+        self.seq = sequence_for(self.link.autopilot)
+        others = sorted(self.link.systems_heard - {self.link.target_system})
+        self.say(f"connected to system {self.link.target_system} ({self.link.autopilot}, "
+                 f"{self.mode_name(hb.custom_mode)}) on {self.link.url}"
+                 + (f"; also heard system {', '.join(map(str, others))} (--sysid picks one)"
+                    if others else ""))
+
+    def _setup(self):
+        link = self.link
+        self.phase = "setup"
+        self._identify()
+        self._owner_check()
+        if self.hover is None:
+            name = self.seq.hover_param
+            self.hover = float(link.param_read(name))
+            self.sources["hover_thrust"] = f"the vehicle's {name}"
+            self.ctrl = self._make_controller(self.hover)
+        self.say(f"hover thrust {self.hover:.3f} from {self.sources['hover_thrust']}")
+        if self.seq.motor_delay_param is None:
+            self.motor_delay = self.seq.motor_delay_default
+            self.sources["motor_delay"] = f"{self.seq.name}'s arming delay"
+        else:
+            self.motor_delay = max(0.0, float(self.read_param(self.seq.motor_delay_param,
+                                                              self.seq.motor_delay_default)))
+            self.sources["motor_delay"] = self.seq.motor_delay_param
+        self._request_streams()
+        self.seq.preflight(self)  # before the setpoint stream (and a lockstep clock) starts
+        for key in ("angle_boost",):
+            if key in self.sources:
+                self.say(self.sources[key])
+        self.gate.restart(self.h)
+        self._enter("measure", None)
+
+    def read_param(self, name, default):
+        """A parameter of the vehicle, or ``default`` (said so) when it does not answer."""
+        try:
+            value = float(self.link.param_read(name))
+        except LinkError:
+            self.say(f"the vehicle did not answer a read of {name}: using {default:g}")
+            return default
+        return value
+
+    def _identify(self):
+        """AUTOPILOT_VERSION: firmware version, and whether this is the bundled vehicle."""
+        result = self.link.command_wait(M.MAV_CMD_REQUEST_MESSAGE,
+                                        M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, tries=2)
+        end = time.monotonic() + (0.5 if result == M.MAV_RESULT_ACCEPTED else 0.0)
+        while "AUTOPILOT_VERSION" not in self.link.messages and time.monotonic() < end:
+            self.link.recv(0.02)
+        av = self.link.messages.get("AUTOPILOT_VERSION")
+        self.identity = {"autopilot": self.link.autopilot, "system_id": self.link.target_system}
+        if av is not None:
+            v = av.flight_sw_version
+            kinds = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
+            self.identity["firmware_version"] = (
+                f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF} {kinds.get(v & 0xFF, v & 0xFF)}")
+            custom = bytes(av.flight_custom_version).rstrip(b"\0")
+            if self.bundled is None:
+                self.bundled = custom == b"mavadrc"
+        if self.bundled is None:
+            self.bundled = False
+        self.identity["bundled_vehicle"] = self.bundled
+
+    def _owner_check(self):
+        """Armed, in the air or already in the mode that takes setpoints: another controller
+        owns the vehicle.  Refused (nothing sent that changes mode, arming or thrust) unless
+        takeover."""
+        link = self.link
+        hb = link.heartbeat
+        link.command_wait(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, tries=2)
+        end = time.monotonic() + 0.3
+        while "EXTENDED_SYS_STATE" not in link.messages and time.monotonic() < end:
+            link.recv(0.02)
+        ess = link.messages.get("EXTENDED_SYS_STATE")
+        in_air = ess is not None and ess.landed_state not in (M.MAV_LANDED_STATE_ON_GROUND,
+                                                              M.MAV_LANDED_STATE_UNDEFINED)
+        owned = []
+        if link.armed:
+            owned.append("armed")
+        if in_air:
+            owned.append("in the air")
+        if self.seq.in_control(hb):
+            owned.append(f"in {self.mode_name(hb.custom_mode)}")
+        self.takeover_in_air = False
+        if not owned:
+            if self.takeover:
+                self.say("--takeover: the vehicle is on the ground and disarmed, flying as usual")
+                self.takeover = False
+            return
+        what = ", ".join(owned)
+        if not self.takeover:
+            raise FlightError(
+                f"system {link.target_system} is {what}: another controller owns it, so mavadrc "
+                "sent nothing that changes its mode, arming or thrust; land it first, or give "
+                "--takeover to fly it from where it is")
+        self.takeover_in_air = link.armed and (in_air or ess is None)
+        self.say(f"--takeover: system {link.target_system} is {what}; flying it from where it is")
+
+    def _request_streams(self):
+        rate = self.m.controller.rate_hz
+        wanted = [(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, rate), (M.MAVLINK_MSG_ID_ATTITUDE, rate),
+                  (M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 10.0)]
+        if self.bundled and self.seq.debug_vect:
+            wanted.append((M.MAVLINK_MSG_ID_DEBUG_VECT, rate))  # the simulator's true disturbance
+        for mid in self.seq.unused_streams:
+            wanted.append((mid, 0))  # not used: spare the link
+        self.streams = {}
+        for mid, hz in wanted:
+            result = self.link.set_rate(mid, hz)
+            name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
+            self.streams[name] = result_name(result)
+            if result != M.MAV_RESULT_ACCEPTED and hz > 0:
+                self.say(f"the vehicle answered {result_name(result)} to {name} at {hz:g} Hz")
+
+    def _ph_measure(self, s):
+        if self._phase_t0 is None:
+            self._phase_t0 = s.t
+            self._start_reference(s)
+        if self.takeover_in_air:
+            self._control_step(s, None, hold=True)
+        else:
+            self._idle(s)
+        if self.gate.span < MEASURE_S or self.gate.received < 5:
+            return
+        self._judge_rate()
+        self._cmd = self.seq.request_control(self.link)
+        self._cmd_tries = 1
+        self._enter("mode", s)
+
+    def _judge_rate(self):
+        """The rate the samples come at, against the one asked for.  Samples lost on the link
+        (gaps in the MAVLink sequence) leave the stream's rate as it is: the steps are timed
+        by the vehicle across the gaps.  A vehicle that sends slower than asked is flown at the
+        rate it sends, and said so.  Below ``safety.min_rate_hz`` the flight is refused."""
+        asked = self.m.controller.rate_hz
+        got = self.gate.achieved_rate()
+        lost = self.link.frame_loss()
+        stream = got / (1.0 - lost) if lost < 0.9 else got
+        seen = (f"{got:.1f} Hz reach us: the vehicle sends {stream:.1f} Hz and "
+                f"{100 * lost:.0f} % of its frames are lost on the link")
+        if got < self.m.safety.min_rate_hz:
+            raise FlightError(f"{seen}, where {asked:g} Hz was asked: below safety.min_rate_hz "
+                              f"{self.m.safety.min_rate_hz:g}, not flying")
+        if stream >= RATE_OK * asked:
+            self.sources["rate"] = f"{asked:g} Hz asked, {got:.1f} Hz measured"
+            if got < RATE_OK * asked:
+                self.sources["rate"] = f"{asked:g} Hz asked; {seen}"
+                self.say(f"warning: {seen}: flying at {asked:g} Hz, each step timed by the "
+                         "vehicle")
+                self.warnings.append(self.sources["rate"])
+            return
+        self.rate = round(stream, 1)
+        self.h = 1.0 / self.rate
+        self.ctrl = self._make_controller(self.hover)
+        self.gate.restart(self.h)
+        self.sources["rate"] = (f"{asked:g} Hz asked; {seen}: flying at {self.rate:g} Hz, each "
+                                "step timed by the vehicle")
+        self.say(f"warning: the samples come at {stream:.1f} Hz, not the {asked:g} Hz asked "
+                 f"({100 * lost:.0f} % lost on the link): flying the controller at "
+                 f"{self.rate:g} Hz")
+        self.warnings.append(self.sources["rate"])
