@@ -129,6 +129,10 @@ class Failsafes:
                 and self.phase != "done":
             self.disarm_confirmed = True
             self.say("disarmed" + ("" if self._handed_over else f"; {self.last_known()}"))
+            if self.seq.in_control(hb):
+                # PX4 goes back to the mode it was asked for (OFFBOARD) once its failsafe has
+                # landed and disarmed: out of it, so the next flight does not find it taken
+                self.link.wait(self.seq.release(self.link))
             self.phase = "done"
 
     def _landing_bound(self):

@@ -346,6 +346,12 @@ class Link:
                 self.on_text(M.MAV_SEVERITY_INFO if msg.result == M.MAV_RESULT_ACCEPTED
                              else M.MAV_SEVERITY_WARNING,
                              f"{command_name(msg.command)}: {result_name(msg.result)}")
+        elif t in ("COMMAND_LONG", "COMMAND_INT") and msg.target_component == \
+                M.MAV_COMP_ID_ONBOARD_COMPUTER and msg.target_system == self.mav.srcSystem:
+            # a command for us (PX4 sends gimbal commands in its land mode): every command gets
+            # an answer, and a companion flying attitude setpoints supports none
+            self.mav.command_ack_send(msg.command, M.MAV_RESULT_UNSUPPORTED, 0, 0,
+                                      msg.get_srcSystem(), msg.get_srcComponent())
         elif t == "STATUSTEXT":
             self.on_text(msg.severity, msg.text)
 

@@ -130,12 +130,18 @@ class Preflight:
             return
         what = ", ".join(owned)
         if not self.takeover:
+            hint = ""
+            if not link.armed and not in_air:
+                hint = (f" (a disarmed vehicle on the ground left in {self.seq.control_mode}: "
+                        "PX4 returns to it after a failsafe landing; switch it to another mode)")
             raise FlightError(
                 f"system {link.target_system} is {what}: another controller owns it, so mavadrc "
                 "sent nothing that changes its mode, arming or thrust; land it first, or give "
-                "--takeover to fly it from where it is")
+                f"--takeover to fly it from where it is{hint}")
         self.takeover_in_air = link.armed and (in_air or ess is None)
         self.say(f"--takeover: system {link.target_system} is {what}; flying it from where it is")
+        if not link.armed:
+            self.takeover = False  # disarmed on the ground: an ordinary flight from here
 
     def _request_streams(self):
         rate = self.m.controller.rate_hz

@@ -232,6 +232,11 @@ class Personality:
     heartbeat_interval_settable: bool = False
     #: MAVLink ids it can stream or send on request (None: every one the vehicle builds)
     messages: frozenset = None
+    #: after a failsafe has landed and disarmed the vehicle, it goes back to the mode it was in
+    #: before the failsafe (PX4's user intention: measured on PX4 SITL, an offboard-loss
+    #: failsafe, then a land command, then "Disarmed by landing", and the heartbeat shows
+    #: OFFBOARD again)
+    restores_mode_after_failsafe: bool = False
     #: STATUSTEXTs (None: the autopilot says nothing)
     disarm_denied_text: str = None
     landing_text: str = None
@@ -419,6 +424,7 @@ def px4():
                # attitude controller (mavlink_receiver.cpp handle_message_set_attitude_target)
                spoolup_param="COM_SPOOLUP_TIME", spoolup_holds_attitude_thrust=False,
                offboard_loss_param="COM_OF_LOSS_T",
+               restores_mode_after_failsafe=True,
                # Commander: arming/disarming denied -> TEMPORARILY_REJECTED; mavlink_receiver:
                # SET_MESSAGE_INTERVAL without such a stream -> FAILED, REQUEST_MESSAGE -> DENIED
                arming_refused=mavlink.MAV_RESULT_TEMPORARILY_REJECTED,

@@ -223,6 +223,7 @@ class SitlServer:
         self._boot_wall = time.time()
         self.mode = self.ap.mode(self.ap.initial_mode)
         self.failsafe = False
+        self._mode_before_failsafe = None  # what a failsafe switched away from
         self._last_setpoint_t = -math.inf  # vehicle time of the last proof-of-life setpoint
         self._last_setpoint_wall = -math.inf
         self._taken_off = False  # the land detector saw a take-off since arming
@@ -524,6 +525,8 @@ class SitlServer:
         """PX4: the offboard-loss failsafe (the personality's offboard_loss_action), announced
         as PX4 does: the event text, then the STATUSTEXT "Failsafe activated"."""
         self.failsafe = True
+        if self._mode_before_failsafe is None:
+            self._mode_before_failsafe = self.mode
         target, action = self.ap.offboard_loss_action(self.params)
         self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Failsafe activated: switching to {action}")
         self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Failsafe activated")
@@ -858,6 +861,7 @@ class SitlServer:
         self._deferred = None
         self._climb_i = 0.0
         self.failsafe = False
+        self._mode_before_failsafe = None
         self.statustext(M.MAV_SEVERITY_INFO, self.ap.armed_text())
         return M.MAV_RESULT_ACCEPTED  # no heartbeat now: the next 1 Hz one shows it
 
@@ -881,7 +885,11 @@ class SitlServer:
         self._landed_since = None
         self.failsafe = False
         self.statustext(mavlink.MAV_SEVERITY_INFO, self.ap.disarmed_text(why))
-        if self.mode.behaviour in (PP.LAND, PP.RTL, PP.TAKEOFF):
+        before, self._mode_before_failsafe = self._mode_before_failsafe, None
+        if before is not None and self.ap.restores_mode_after_failsafe:
+            self.mode = before
+            self._mode_changed()
+        elif self.mode.behaviour in (PP.LAND, PP.RTL, PP.TAKEOFF):
             self.mode = self.ap.mode(self.ap.initial_mode)
             self._apply_mode_behaviour()
             self._mode_changed()

@@ -219,6 +219,9 @@ def test_a_two_second_blackout_ends_on_the_ground_disarmed(tmp_path):
     assert on_ground.get("at", math.inf) < 20.0, on_ground
     assert took < 40.0 + 6.0  # 6 s of setup before the blackout
     assert summary["disarmed"]
+    # PX4 goes back to OFFBOARD once its failsafe has landed and disarmed it; the flight takes
+    # it out of OFFBOARD, so the next flight does not find it taken
+    assert wait_until(lambda: srv.mode.name == "AUTO.LOITER", 3.0), srv.mode.name
 
 
 # --- commands and their answers ------------------------------------------------------------------

@@ -304,7 +304,10 @@ def test_px4_offboard_loss_without_rc_returns_lands_and_disarms():
         assert math.hypot(*srv.vehicle.reported().position[:2]) < 0.6  # it came home
         assert c.recv("STATUSTEXT", timeout=5.0,
                       cond=lambda m: m.text == "Disarmed by landing") is not None
-        assert c.recv("HEARTBEAT", timeout=3.0, cond=lambda m: not m.base_mode & ARMED)
+        hb = c.recv("HEARTBEAT", timeout=3.0, cond=lambda m: not m.base_mode & ARMED)
+        # and, disarmed, back in the mode the failsafe took it from (PX4's user intention; seen
+        # on PX4 SITL: RTL, landed, "Disarmed by landing", then heartbeats in OFFBOARD)
+        assert hb is not None and hb.custom_mode == px4_mode(6)
     finally:
         c.close()
         srv.stop()
