@@ -127,13 +127,8 @@ class Failsafes:
         hb = self.link.heartbeat_since(self._failsafe_wall)
         if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED \
                 and self.phase != "done":
-            self.disarm_confirmed = True
-            self.say("disarmed" + ("" if self._handed_over else f"; {self.last_known()}"))
-            if self.seq.in_control(hb):
-                # PX4 goes back to the mode it was asked for (OFFBOARD) once its failsafe has
-                # landed and disarmed: out of it, so the next flight does not find it taken
-                self.link.wait(self.seq.release(self.link))
-            self.phase = "done"
+            self._end_disarmed(hb, "disarmed" + ("" if self._handed_over
+                                                  else f"; {self.last_known()}"))
 
     def _landing_bound(self):
         """How long the autopilot may take to land and disarm: from the height, at 0.4 m/s

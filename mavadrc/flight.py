@@ -400,6 +400,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
         OFFBOARD, harmless to a vehicle on the ground."""
         self._send(s.t, level_quat(self.yaw), 0.0)
 
+    def _end_disarmed(self, hb, text):
+        """A heartbeat shows the vehicle disarmed: the flight is over.  Still in our mode (PX4
+        goes back to OFFBOARD once its own failsafe has landed and disarmed it), it is put in
+        its hold mode, as MAVSDK's offboard.stop() does, so the next flight does not find it
+        taken."""
+        self.disarm_confirmed = True
+        self.say(text)
+        if self.seq.in_control(hb):
+            self.link.wait(self.seq.release(self.link))
+        self.phase = "done"
+
     # --- waiting on the vehicle ---------------------------------------------------------------
 
     def _awaiting(self):

@@ -69,16 +69,8 @@ class GroundPhases:
         else:
             self._idle(s)
         c = self._cmd
-        if c is not None and c.done:
-            self._cmd = None
-            if c.accepted or c.result == TIMEOUT:
-                # accepted: see it in a heartbeat; no answer: the heartbeat settles it
-                self._ask_heartbeat()
-                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
-                if c.result == TIMEOUT:
-                    self.say(f"no answer to the mode change after {c.sent} tries: "
-                             "asking the vehicle for its mode")
-            elif c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
+        if c is not None and c.done and self._refused_answer(c, "the mode change", "its mode"):
+            if c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
                 self._cmd_tries += 1  # PX4: the setpoint stream is not seen yet
                 self._retry_t = s.t + 0.3
             else:
@@ -101,17 +93,10 @@ class GroundPhases:
     def _ph_arming(self, s):
         self._idle(s)
         c = self._cmd
-        if c is not None and c.done:
-            self._cmd = None
-            if c.accepted or c.result == TIMEOUT:
-                self._ask_heartbeat()
-                self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
-                if c.result == TIMEOUT:
-                    self.say(f"no answer to the arm command after {c.sent} tries: asking the "
-                             "vehicle whether it armed")
-            else:
-                raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
-                                  f"{self._because()}")
+        if c is not None and c.done and self._refused_answer(c, "the arm command",
+                                                             "whether it armed"):
+            raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
+                              f"{self._because()}")
         hb = self._fresh()
         if hb is not None and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
             self._confirm_since = None
@@ -121,6 +106,20 @@ class GroundPhases:
             self.say(f"armed; motors start in {self.motor_delay:g} s "
                      f"({self.sources.get('motor_delay', 'default')}), then the spool-up")
             self._enter("spoolup", s)  # from the next sample: one setpoint per sample
+
+    def _refused_answer(self, c, what, question):
+        """The answer to a command that changes the vehicle's state: accepted, it is to be seen
+        in a heartbeat newer than the answer; unanswered, such a heartbeat settles it (both
+        asked for now).  Returns whether the vehicle refused."""
+        self._cmd = None
+        if c.accepted or c.result == TIMEOUT:
+            self._ask_heartbeat()
+            self._confirm_since = c.acked_wall if c.accepted else self._hb_request_wall
+            if c.result == TIMEOUT:
+                self.say(f"no answer to {what} after {c.sent} tries: asking the vehicle "
+                         f"{question}")
+            return False
+        return True
 
     def _because(self):
         """The vehicle's latest words, if any came in the last seconds."""
@@ -233,13 +232,8 @@ class GroundPhases:
             self._confirm_since = self._phase_wall  # ask for heartbeats until one shows it
         hb = self.link.heartbeat_since(self._phase_wall)
         if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
-            self.disarm_confirmed = True
             self._confirm_since = None
-            self.say("disarmed")
-            if self.seq.in_control(hb):
-                self.link.wait(self.seq.release(self.link))
-            self.phase = "done"
-            return
+            return self._end_disarmed(hb, "disarmed")
         c = self._cmd
         if self.seq.land_to_disarm:
             if c is None or (c.done and not c.accepted and now - c.acked_wall > 1.0):
