@@ -83,12 +83,19 @@ class VehicleParams:
     rotor_drag: float = 0.0        # N / (m/s) / (rad/s)
     rotor_inertia: float = 0.0     # kg m^2, each rotor about its axis
     description: str = ""
+    #: closed-loop bandwidth (rad/s) per axis of the autopilot's PX4-like attitude loop (None:
+    #: the firmware's default for fast motors); a vehicle whose autopilot answers an attitude
+    #: command slowly, as real ones do, gets a lower one
+    attitude_bandwidth: Any = None
 
     def __post_init__(self) -> None:
         self.inertia = np.array(self.inertia, dtype=float).reshape(3)
         self.drag_linear = np.broadcast_to(np.asarray(self.drag_linear, dtype=float), 3).copy()
         self.drag_quadratic = np.broadcast_to(
             np.asarray(self.drag_quadratic, dtype=float), 3).copy()
+        if self.attitude_bandwidth is not None:
+            self.attitude_bandwidth = np.broadcast_to(
+                np.asarray(self.attitude_bandwidth, dtype=float), 3).copy()
         problems = physical_problems({f.name: getattr(self, f.name) for f in fields(self)})
         if problems:
             name, reason = problems[0]
@@ -226,6 +233,8 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
         "rotor_drag": sec.number("rotor_drag", 0.0, ge=0),
         "rotor_inertia": sec.number("rotor_inertia", 0.0, ge=0),
         "description": sec.string("description", ""),
+        "attitude_bandwidth": (sec.vector("attitude_bandwidth", 3, scalar_ok=True, gt=0)
+                               if sec.has("attitude_bandwidth") else None),
     }
     sec.finish()
     for name, reason in physical_problems(values):

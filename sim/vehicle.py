@@ -541,7 +541,8 @@ def response_time_constants(vehicle="crazyflie", attitude_controller="px4", hove
     Deterministic; cached per vehicle and attitude controller.
     """
     vp = resolve_vehicle(vehicle)
-    key = (repr(vp.pack().tolist()), attitude_controller, hover_thrust)
+    key = (repr(vp.pack().tolist()), repr(vp.attitude_bandwidth), attitude_controller,
+           hover_thrust)
     if key in _LAGS:
         return _LAGS[key]
     out = []

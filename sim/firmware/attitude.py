@@ -343,10 +343,13 @@ def px4_gains(vehicle, bandwidth=(25.0, 25.0, 10.0), integral=0.05):
 def default_bandwidths(vehicle, kind):
     """Closed-loop bandwidths (rad/s) per axis chosen for the vehicle's motor lag.
 
-    px4: triple pole; ladrc/adrc/pd: controller bandwidth wc (the observer runs at 4 wc).
+    px4: triple pole (the vehicle file's ``attitude_bandwidth`` where it gives one);
+    ladrc/adrc/pd: controller bandwidth wc (the observer runs at 4 wc).
     """
     tau = motor_time_constant(vehicle)
     if kind == "px4":
+        if getattr(vehicle, "attitude_bandwidth", None) is not None:
+            return np.array(vehicle.attitude_bandwidth, dtype=float)  # the vehicle file's
         return np.array([25.0, 25.0, 10.0])
     # the control law itself does not know the motor lag: keep wc below 1/tau_m on slow motors
     # (Crazyflie: 12 rad/s settles a 10 deg step in 0.24 s; 16 rad/s already overshoots)
