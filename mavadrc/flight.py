@@ -241,7 +241,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._interrupts = 0
         self._exceptions = 0
         self._warned = {}
-        self._descent = collections.deque()  # (t, vz) of the last 1.5 s of flight
+        self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal

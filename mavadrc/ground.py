@@ -25,6 +25,8 @@ LIFTOFF_CLIMB = 0.2
 SETTLED_SPEED = 0.1
 SETTLED_S = 0.3
 CUT_S = 0.5  # thrust ramp down after touchdown
+#: s of position history before touchdown the touchdown speed is judged over
+DESCENT_S = 2.0
 
 
 def spool_thrust(t, start_at, hover):
@@ -45,6 +47,26 @@ def lifted_off(height, vz):
     """Whether a vehicle ``height`` m above its takeoff spot, at vertical speed ``vz`` (NED), has
     left the ground."""
     return height >= LIFTOFF_HEIGHT or vz < -LIFTOFF_CLIMB
+
+
+def touchdown_speed(descent, window=0.1):
+    """The fastest descent in ``descent`` ((t, z NED) of the last :data:`DESCENT_S` before
+    touchdown was seen), each sample against the newest one at least ``window`` s older, m/s
+    (0 if there is none).
+
+    The autopilot's position estimate, not the truth, and not its velocity estimate: flown
+    against PX4 SIH's true state, the velocity estimate near the ground was biased (a climb
+    read while the vehicle sat still) and its peaks ran up to 0.15 m/s over the true touchdown
+    speed, while the position estimate's descent came within about 0.1 m/s of it."""
+    best = 0.0
+    j = -1  # the newest sample at least `window` older than sample i
+    for i, (t, z) in enumerate(descent):
+        while j + 1 < i and descent[j + 1][0] <= t - window + 1e-9:
+            j += 1
+        if j >= 0:
+            t0, z0 = descent[j]
+            best = max(best, (z - z0) / (t - t0))
+    return best
 
 
 def touchdown_reference(start, speed, tau):
@@ -183,10 +205,7 @@ class GroundPhases:
         ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND and \
             self.landed_state_wall is not None and self.landed_state_wall > self._phase_wall
         if ground or (self._settled_since is not None and s.t - self._settled_since >= SETTLED_S):
-            # the touchdown speed: the fastest descent in the second before it settled
-            t_settled = self._settled_since if self._settled_since is not None else s.t
-            self.touchdown_speed = max([0.0] + [vz for tt, vz in self._descent
-                                                if t_settled - 1.0 <= tt <= t_settled])
+            self.touchdown_speed = touchdown_speed(self._descent)
             self.touchdown_seen = True
             self.ctrl.hold_disturbance()
             self._cut_from = thrust
@@ -205,8 +224,8 @@ class GroundPhases:
                            f"touchdown not seen {bound:.0f} s into the final descent")
 
     def _descent_history(self, s):
-        self._descent.append((s.t, float(s.vel[2])))
-        while self._descent[0][0] < s.t - 1.5:
+        self._descent.append((s.t, float(s.pos[2])))
+        while self._descent[0][0] < s.t - DESCENT_S:
             self._descent.popleft()
 
     def _land_speed(self):

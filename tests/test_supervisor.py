@@ -214,3 +214,30 @@ def test_an_event_frame_is_decoded_and_named():
     unknown = E.decode(frame(0x1ABCDEF, 0x44))
     assert "0x01abcdef" in E.describe(unknown)  # warning level: shown
     assert E.describe(E.decode(frame(0x1ABCDEF, 0x66))) is None  # info level: not
+
+
+# --- the touchdown speed -------------------------------------------------------------------------
+
+
+def _descent(times, z_of_t):
+    return [(t, z_of_t(t)) for t in times]
+
+
+def test_touchdown_speed_is_the_fastest_descent_of_the_position_estimate():
+    from mavadrc.ground import touchdown_speed
+    t = np.arange(0.0, 2.0, 0.02)
+    # 0.3 m/s down until 1.5 s, then on the ground: 0.3 m/s, not the instant before it settled
+    z = _descent(t, lambda tt: -1.0 + 0.3 * min(tt, 1.5))
+    assert touchdown_speed(z) == pytest.approx(0.3, abs=1e-9)
+    # a faster last 0.2 s (0.8 m/s) is what counts
+    z = _descent(t, lambda tt: -1.0 + 0.3 * min(tt, 1.3) + 0.8 * max(0.0, min(tt, 1.5) - 1.3))
+    assert touchdown_speed(z) == pytest.approx(0.8, abs=0.01)
+    # climbing or still: zero; a lone sample: zero
+    assert touchdown_speed(_descent(t, lambda tt: -1.0 - 0.2 * tt)) == 0.0
+    assert touchdown_speed([(0.0, -0.1)]) == 0.0
+    # one noisy sample (a 1 cm jump) is averaged over 0.1 s, not read as 0.5 m/s (2 cm in 0.02 s)
+    z = _descent(t, lambda tt: -0.5 + (0.01 if abs(tt - 1.0) < 1e-6 else 0.0))
+    assert touchdown_speed(z) <= 0.1 + 1e-9
+    # uneven intervals (telemetry at a ragged rate) still give the true speed
+    tu = np.cumsum(np.r_[0.0, np.tile([0.008, 0.05, 0.016], 30)])
+    assert touchdown_speed(_descent(tu, lambda tt: 0.4 * tt)) == pytest.approx(0.4, abs=1e-9)
