@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mavadrc.control.rotations import rotation_matrix
+
 from . import personality as PP
 from . import physics as phys
 from . import wind as W
@@ -699,7 +701,7 @@ class SitlServer:
                 ms, lat, lon, int(round(alt * 1000)), int(round(-p[2] * 1000)),
                 int(round(vel[0] * 100)), int(round(vel[1] * 100)), int(round(vel[2] * 100)), hdg)
         if mid == M.MAVLINK_MSG_ID_ODOMETRY:
-            R = phys.rotation_matrix(q)
+            R = rotation_matrix(q)
             vb = R.T @ vel
             nan21 = [math.nan] * 21
             return M.MAVLink_odometry_message(
