@@ -7,7 +7,8 @@ import signal
 import sys
 import threading
 
-from .server import SitlServer, read_signing_key
+from .mavlink.link import read_signing_key
+from .server import SitlServer
 
 
 def add_arguments(p):
@@ -77,8 +78,8 @@ def warm_up(vehicle, wind, attitude_controller):
 
 def parse_params(items, autopilot):
     """{NAME: value} from --param NAME=VALUE items; SystemExit naming the bad one."""
+    from .mavlink.parameters import parse_param
     from .personality import personality
-    from .server import parse_param
 
     ap = personality(autopilot)
     out = {}
