@@ -36,7 +36,8 @@ from . import personality as PP
 from .autopilot import Autopilot
 from .mavlink import ftp, mission
 from .mavlink.commands import Commands
-from .mavlink.link import GCS_RATES, ONBOARD_RATES, Link, Stats, bind_udp, default_ports
+from .mavlink.link import (GCS_RATES, LOOPBACK, ONBOARD_RATES, Link, Stats, bind_udp,
+                           default_ports)
 from .mavlink.offboard import Offboard
 from .mavlink.parameters import Parameters
 from .mavlink.receiver import Receiver
@@ -58,7 +59,7 @@ class SitlServer:
 
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
                  lockstep_timeout=10.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
-                 host="127.0.0.1", offboard_port=None, gcs_port=None, bind_offboard=None,
+                 host=LOOPBACK, offboard_port=None, gcs_port=None, bind_offboard=None,
                  bind_gcs=None, params=None):
         self.vehicle = vehicle
         self.ap = PP.personality(autopilot)

@@ -51,6 +51,8 @@ GCS_RATES = {
     MSG.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
 }
 
+LOOPBACK = "127.0.0.1"
+
 #: with signing on, the messages accepted unsigned (ArduPilot's rule)
 UNSIGNED_ALLOWED = (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS)
 
