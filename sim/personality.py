@@ -373,11 +373,11 @@ class Personality:
     def sends(self, msgid):
         return self.messages is None or msgid in self.messages
 
+    # the rules below are overridden per autopilot
+
     def base_mode_flags(self, mode):
         """HEARTBEAT base_mode flags in ``mode`` besides CUSTOM_MODE_ENABLED and SAFETY_ARMED."""
         return 0
-
-    # the rules below are overridden per autopilot
 
     def command_mode(self, p2, p3):
         """The mode MAV_CMD_DO_SET_MODE asks for with param2 and param3 (None: no such mode)."""
