@@ -11,7 +11,7 @@ reached, an end that says what was last known of it.
 import math
 import time
 
-from .ground import level_quat
+from .control.rotations import level_quat
 from .link import M
 from .supervisor import GIVE_UP, HOLD_THEN_LAND, LAND, WATCH
 

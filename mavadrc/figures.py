@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import record
+from .control.rotations import quats_to_euler
 
 #: resolution of every PNG, dots per inch
 DPI = 150
@@ -74,18 +75,17 @@ def _title(summary, what):
 def quat_to_euler_deg(q):
     """(N, 4) quaternions (w, x, y, z) -> (N, 3) ZYX roll, pitch, yaw in degrees.
 
-    Same convention as :func:`mavadrc.control.geometry.quat_to_euler`.  Yaw is unwrapped over the
+    :func:`mavadrc.control.rotations.quat_to_euler` of each row; yaw is unwrapped over the
     finite samples so a turn through 180 degrees draws as a line, not a jump.
     """
-    q = np.asarray(q, dtype=float).reshape(-1, 4)
-    w, x, y, z = q.T
-    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    q = np.ascontiguousarray(q, dtype=np.float64).reshape(-1, 4)
+    eul = np.empty((len(q), 3))
+    quats_to_euler(q, eul)
+    yaw = eul[:, 2]
     ok = np.isfinite(yaw)
     if ok.any():
         yaw[ok] = np.unwrap(yaw[ok])
-    return np.degrees(np.column_stack([roll, pitch, yaw]))
+    return np.degrees(eul)
 
 
 def phase_spans(t, phase):

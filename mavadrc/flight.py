@@ -44,8 +44,9 @@ import numpy as np
 
 from .console import Console
 from .control import PositionController
+from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .ground import GroundPhases, level_quat, lifted_off
+from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .record import Recorder, attitude_oscillation

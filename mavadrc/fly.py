@@ -150,7 +150,7 @@ def read_key(path):
     """The 32-byte signing secret of a --signing-key file (64 hex characters), or None."""
     if path is None:
         return None
-    from sim.server import read_signing_key
+    from sim.mavlink.link import read_signing_key
 
     try:
         return read_signing_key(path)

@@ -9,10 +9,9 @@ vertical speed and height settled); then the thrust is cut, and the disarm follo
 autopilot's landing detector.
 """
 
-import math
-
 import numpy as np
 
+from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
 from .mission import FINAL_SPEED
 from .trajectories import Reference
@@ -33,14 +32,6 @@ def spool_thrust(t, start_at, hover):
     """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
     ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
     return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
-
-
-def level_quat(yaw):
-    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
-
-
-def wrap_pi(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def lifted_off(height, vz):

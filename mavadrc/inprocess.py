@@ -42,8 +42,9 @@ from .control import geometry as G
 from .control import kernels as K
 from .control._jit import jit
 from .control.position import position_hold_disturbance, position_update
+from .control.rotations import quat_to_euler, wrap_pi
 from .flight import YAW_RATE, make_controller
-from .ground import LIFTOFF_CLIMB, LIFTOFF_HEIGHT, spool_thrust, wrap_pi
+from .ground import LIFTOFF_CLIMB, LIFTOFF_HEIGHT, spool_thrust
 
 #: s of vehicle time at which every run's mission clock starts: after the MAVLink flight has
 #: measured the sample rate (1 s), armed, and waited out PX4's COM_SPOOLUP_TIME (1 s)
@@ -171,7 +172,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         for i in range(4):
             e[i] = x[phys.IX_Q + i]
             row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
-        G.quat_to_euler(e, eul)
+        quat_to_euler(e, eul)
         row[L_YAW] = eul[2]
         row[L_REF_YAW] = yaw_ref
         for i in range(3):
@@ -223,7 +224,7 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
             vel[i] = _f32(x[3 + i])
         for i in range(4):
             e[i] = x[phys.IX_Q + i]
-        G.quat_to_euler(e, eul)
+        quat_to_euler(e, eul)
         yaw = _f32(eul[2])
         last = j == n - 1 or _lifted(pos, vel, origin, rules)
         if last:

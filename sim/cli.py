@@ -7,7 +7,8 @@ import signal
 import sys
 import threading
 
-from .server import SitlServer, read_signing_key
+from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
+from .server import SitlServer
 
 
 def add_arguments(p):
@@ -77,8 +78,8 @@ def warm_up(vehicle, wind, attitude_controller):
 
 def parse_params(items, autopilot):
     """{NAME: value} from --param NAME=VALUE items; SystemExit naming the bad one."""
+    from .mavlink.parameters import parse_param
     from .personality import personality
-    from .server import parse_param
 
     ap = personality(autopilot)
     out = {}
@@ -94,12 +95,39 @@ def parse_params(items, autopilot):
     return out
 
 
+#: each link's local port: the option that sets it and its attribute in the arguments
+BIND_OPTIONS = {"offboard": ("--bind-offboard", "bind_offboard"), "gcs": ("--bind-gcs", "bind_gcs")}
+
+
+def port_in_use(e, args):
+    """The SystemExit for :class:`~sim.mavlink.link.PortInUse` ``e``: the port, and the options
+    that choose another."""
+    option, dest = BIND_OPTIONS[e.link]
+    how = f"{option} PORT (0: any free port)"
+    if getattr(args, dest) is None:
+        how += " or --instance N (every port + N)"
+    return SystemExit(f"mavadrc sitl: {e}; choose another with {how}")
+
+
+def check_ports(args):
+    """Fail at once, before the warm-up compiles anything, if a link's local port is taken."""
+    ports = default_ports(args.instance, args.offboard_port, args.gcs_port, args.bind_offboard,
+                          args.bind_gcs)
+    for name, (_, local) in ports.items():
+        if local:
+            try:
+                bind_udp(LOOPBACK, local, name).close()
+            except PortInUse as e:
+                raise port_in_use(e, args) from None
+
+
 def make_server(args):
     from .vehicle import SimVehicle
 
     if not math.isfinite(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
+    check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
     if args.noise or args.latency > 0.0:
@@ -114,10 +142,14 @@ def make_server(args):
     except ValueError:
         raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
     key = read_signing_key(args.signing_key) if args.signing_key else None
-    return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
-                      lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
-                      offboard_port=args.offboard_port, gcs_port=args.gcs_port,
-                      bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs, params=params)
+    try:
+        return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
+                          lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
+                          offboard_port=args.offboard_port, gcs_port=args.gcs_port,
+                          bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs,
+                          params=params)
+    except PortInUse as e:  # taken since check_ports
+        raise port_in_use(e, args) from None
 
 
 def run(args):

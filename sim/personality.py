@@ -1,9 +1,14 @@
 """Autopilot personalities of the bundled vehicle: how PX4 and ArduCopter look on the wire.
 
-A personality owns the heartbeat identity, the custom-mode encoding, the mapping from a mode
-command to one of the vehicle's behaviours, the parameter set and the offboard rules.  The
-vehicle's behaviours (the ``Behaviour`` names) are shared: hold, takeoff, land, rtl, and the two
-that accept external setpoints, offboard (PX4) and guided (ArduPilot).
+The personality is the only place where the two differ; the autopilot (:mod:`sim.autopilot`)
+and the MAVLink handlers (:mod:`sim.mavlink`) ask it and never test which one it is (as
+ArduPilot's GCS_MAVLINK lets each vehicle override only what differs).  A personality owns the
+heartbeat identity, the custom-mode encoding, the mapping from a mode command to one of the
+vehicle's behaviours, the parameter set and the offboard rules: which mode takes setpoints and
+when, how an attitude setpoint is flown (PX4: as sent; ArduCopter: GUIDED's attitude control,
+:class:`GuidedAngleControl`), which parameter times out a silent stream and what follows.  The
+vehicle's behaviours (the ``Behaviour`` names) are shared: hold, takeoff, land, rtl, and the one
+that accepts external setpoints, offboard (PX4 OFFBOARD, ArduPilot GUIDED / GUIDED_NOGPS).
 
 It also owns what makes each autopilot less kind than a simulator (see the design notes,
 MAVLINK.md section 9): when heartbeats go out, how long the motors stay at idle after arming,
@@ -12,10 +17,18 @@ messages it can stream and the MAV_RESULT of a refusal.  Each rule names the sou
 real autopilot it follows (PX4-Autopilot and ArduPilot as of 2026).
 """
 
+import logging
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from mavadrc.control.rotations import euler_from_quat, level_quat
+
+from .physics import GRAVITY
+
+log = logging.getLogger("mavadrc.sitl")
 
 # behaviours of the simulated autopilot
 HOLD = "hold"
@@ -74,13 +87,14 @@ class LandInputs:
     """What a land detector reads each step: the collective thrust the vehicle is asked for
     (normalized), the measured velocity (NED, m/s) and roll/pitch rate norm (rad/s), the tilt of
     the attitude target (rad), whether the altitude is under closed-loop climb-rate control and
-    whether that loop is commanding a descent."""
+    the descent rate (m/s, down) the position loop commands (inf when no position loop runs:
+    landing, or idle on the ground)."""
     thrust: float
     velocity: tuple
     rates_xy: float
     target_tilt: float
     climb_rate_control: bool
-    in_descend: bool
+    descent_cmd: float
 
 
 class PX4LandDetector:
@@ -90,8 +104,8 @@ class PX4LandDetector:
 
     - ground contact: thrust <= MPC_THR_MIN + (hover - MPC_THR_MIN) * 0.3 (0.6 with a hover
       thrust estimate, i.e. under climb-rate control), |vz| < LNDMC_Z_VEL_MAX (x 2.5 once landed),
-      |vxy| <= LNDMC_XY_VEL_MAX, and under climb-rate control a commanded descent unless already
-      (maybe) landed;
+      |vxy| <= LNDMC_XY_VEL_MAX, and under climb-rate control a commanded descent (faster than
+      1.1 LNDMC_Z_VEL_MAX) unless already (maybe) landed;
     - maybe landed: ground contact, roll/pitch rate <= LNDMC_ROT_MAX (x 2.5 once landed) and
       "minimum thrust": under climb-rate control thrust <= MPC_THR_MIN + (hover - MPC_THR_MIN) *
       0.1, otherwise (offboard attitude, manual) thrust <= MPC_MANTHR_MIN + 0.01;
@@ -132,7 +146,7 @@ class PX4LandDetector:
         low = u.thrust <= thr_min + (hover - thr_min) * (0.6 if u.climb_rate_control else 0.3)
         contact = low and abs(vz) < vz_max and math.hypot(vx, vy) <= p("LNDMC_XY_VEL_MAX")
         if u.climb_rate_control and not self._maybe.state and not was_landed:
-            contact = contact and u.in_descend
+            contact = contact and u.descent_cmd >= 1.1 * p("LNDMC_Z_VEL_MAX")
         self.ground_contact.update(contact, dt)
         if u.climb_rate_control:
             min_thrust = thr_min + (hover - thr_min) * 0.1
@@ -203,6 +217,100 @@ class ArduCopterLandDetector:
 
 
 @dataclass
+class GuidedTarget:
+    """ArduCopter GUIDED's attitude target (mode_guided.cpp guided_angle_state): attitude,
+    thrust or climb rate (m/s), which of the two, vehicle time of the update, body rates (None:
+    not given) and the type_mask the attitude controller gets."""
+    q: np.ndarray
+    value: float
+    use_thrust: bool
+    t: float
+    rates: list = None
+    mask: int = 7
+    timed_out: bool = False
+
+
+class GuidedAngleControl:
+    """ArduCopter GUIDED's attitude control (mode_guided.cpp angle_control_run), run by the
+    autopilot each step while armed and past the arming delay, on the target of the last
+    SET_ATTITUDE_TARGET (:meth:`ArduCopter.attitude_setpoint`; a PX4 vehicle never sets one).
+
+    No new target for GUID_TIMEOUT s: level at the target's heading and hold the climb rate at
+    zero (the thrust, if it was thrust, becomes a climb rate).  On the ground (land detector)
+    without positive thrust or climb: motors at idle.  Otherwise thrust (GUID_OPTIONS bit 3)
+    through the angle boost, or the climb-rate loop.
+    """
+
+    def __init__(self):
+        self.target = None
+        self.climb_i = 0.0  # climb-rate loop integrator (m/s^2)
+
+    def take(self, sp, params, t):
+        """Make attitude setpoint ``sp`` (:class:`sim.autopilot.AttitudeSetpoint`), received at
+        vehicle time ``t``, the target; returns what ATTITUDE_TARGET then echoes (q, thrust,
+        rates, type_mask).  Thrust is a climb rate (0.5: hold, PILOT_SPEED_UP / _DN at the
+        ends) unless GUID_OPTIONS bit 3 makes it thrust; a setpoint that ignores the throttle
+        asks for a climb rate of zero."""
+        use_thrust = bool(int(params["GUID_OPTIONS"][0]) & 8) and not sp.throttle_ignored
+        th = 0.5 if sp.throttle_ignored else sp.thrust
+        if use_thrust:
+            value = sp.thrust
+        else:
+            up = float(params["PILOT_SPEED_UP"][0]) / 100.0
+            dn = float(params["PILOT_SPEED_DN"][0]) / 100.0
+            value = (th - 0.5) * 2.0 * (up if th >= 0.5 else dn)
+        q = np.array([1.0, 0.0, 0.0, 0.0] if sp.attitude_ignored else sp.q, dtype=float)
+        self.target = GuidedTarget(q, value, use_thrust, t,
+                                   None if sp.rates_ignored else sp.rates,
+                                   sp.mask & ~mavlink.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE)
+        return q, th, sp.rates, sp.mask
+
+    def output(self, dt, vehicle, params, timeout, landed, reported):
+        """Set the vehicle's attitude target for this step: ``timeout`` is GUID_TIMEOUT (s),
+        ``landed`` the land detector's state, ``reported()`` the vehicle's reported state."""
+        g = self.target
+        if not g.timed_out and vehicle.time - g.t > timeout + 1e-9:
+            g.q = level_quat(euler_from_quat(g.q)[2])
+            g.rates, g.mask = None, 7
+            g.value, g.use_thrust, g.timed_out = 0.0, False, True
+            self.climb_i = 0.0
+            log.info("GUIDED: no attitude target for GUID_TIMEOUT: level, climb rate zero")
+        if landed and not g.value > 0.0:
+            vehicle.set_attitude_target(level_quat(float(reported().euler[2])), 0.0)
+            self.climb_i = 0.0
+            return
+        if g.use_thrust:
+            thrust = self._angle_boost(g.value, params, reported().quaternion)
+        else:
+            thrust = self._climb_thrust(g, dt, params, reported().velocity)
+        vehicle.set_attitude_target(g.q, thrust, body_rates=g.rates, type_mask=g.mask)
+
+    @staticmethod
+    def _angle_boost(thrust, params, q):
+        """AC_AttitudeControl_Multi::get_throttle_boosted, as GUIDED's set_throttle_out(thrust,
+        true, ...) applies it: thrust x inverted_factor / cos(tilt), where cos(tilt) is the
+        measured cos(roll) cos(pitch), the boost factor clamped to cos >= 0.1 and
+        inverted_factor = clamp(10 cos(tilt), 0, 1); off with ATC_ANGLE_BOOST 0.  The motors
+        clip the result to 0..1."""
+        if int(params["ATC_ANGLE_BOOST"][0]):
+            c = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
+            thrust = thrust * min(max(10.0 * c, 0.0), 1.0) / min(max(c, 0.1), 1.0)
+        return min(max(thrust, 0.0), 1.0)
+
+    def _climb_thrust(self, g, dt, params, velocity):
+        """GUIDED without GUID_OPTIONS bit 3: thrust is a climb rate; a PI climb-rate loop
+        (its integrator winds the throttle down to its lower limit on the ground, as
+        ArduCopter's, so that the land detector can see a landing)."""
+        err = g.value + velocity[2]  # climb rate asked minus climb rate measured (m/s)
+        self.climb_i = min(max(self.climb_i + 2.0 * err * dt, -GRAVITY), GRAVITY)
+        hover = float(params["MOT_THST_HOVER"][0])
+        q = g.q
+        tilt = max(0.3, 1.0 - 2.0 * (q[1] ** 2 + q[2] ** 2))
+        thrust = hover * (1.0 + (3.0 * err + self.climb_i) / GRAVITY) / tilt
+        return min(max(thrust, 0.0), 1.0)
+
+
+@dataclass
 class Personality:
     name: str
     autopilot: int
@@ -219,11 +327,21 @@ class Personality:
     heartbeat_on_mode_change: bool = False
     #: parameter (s) holding the motors at idle after arming; setpoints meanwhile do nothing
     spoolup_param: str = "COM_SPOOLUP_TIME"
-    #: the idle hold also applies to offboard attitude thrust (not only to position control)
-    spoolup_holds_attitude_thrust: bool = False
-    #: parameter (s) after which a silent setpoint stream is a lost offboard link (None: no
-    #: such failsafe)
-    offboard_loss_param: str = None
+    #: parameter (s) after which a silent setpoint stream counts as lost
+    offboard_timeout_param: str = "COM_OF_LOSS_T"
+    #: a lost setpoint stream triggers the failsafe of offboard_loss_action (otherwise the
+    #: offboard mode copes with it itself)
+    offboard_loss_failsafe: bool = False
+    #: arming in the offboard mode and switching to it need a live setpoint stream
+    offboard_needs_stream: bool = False
+    #: setpoints outside the offboard mode are ignored (not stored, not proof of life)
+    setpoints_only_in_offboard: bool = False
+    #: switching to the offboard mode in the air holds the position until a setpoint comes
+    offboard_entry_holds: bool = False
+    #: the mode MAV_CMD_NAV_TAKEOFF switches to (None: a takeoff only in the offboard mode)
+    takeoff_mode: str = None
+    #: the mode the takeoff mode hands over to once the takeoff altitude is reached
+    mode_after_takeoff: str = None
     #: MAV_RESULTs of refusals
     arming_refused: int = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     interval_refused: int = mavlink.MAV_RESULT_FAILED
@@ -243,7 +361,8 @@ class Personality:
     takeoff_text: str = None
 
     def mode(self, name):
-        return self.modes[name]
+        """The mode called ``name`` or one of its aliases."""
+        return self.modes[self.mode_aliases.get(name, name)]
 
     def mode_from_custom(self, custom_mode):
         for m in self.modes.values():
@@ -255,6 +374,33 @@ class Personality:
         return self.messages is None or msgid in self.messages
 
     # the rules below are overridden per autopilot
+
+    def base_mode_flags(self, mode):
+        """HEARTBEAT base_mode flags in ``mode`` besides CUSTOM_MODE_ENABLED and SAFETY_ARMED."""
+        return 0
+
+    def command_mode(self, p2, p3):
+        """The mode MAV_CMD_DO_SET_MODE asks for with param2 and param3 (None: no such mode)."""
+        raise NotImplementedError
+
+    def message_mode(self, custom_mode):
+        """The mode SET_MODE asks for with ``custom_mode`` (None: no such mode)."""
+        raise NotImplementedError
+
+    def rtl_altitude(self, params):
+        """Minimum altitude (m above home) of the return to launch."""
+        raise NotImplementedError
+
+    def takeoff_altitude(self, params, p7, home_alt):
+        """Takeoff altitude (m above home) of MAV_CMD_NAV_TAKEOFF with param7 ``p7`` (NaN: none
+        given) for a home at ``home_alt`` m AMSL; None: the command is denied."""
+        raise NotImplementedError
+
+    def attitude_setpoint(self, autopilot, sp):
+        """Take SET_ATTITUDE_TARGET ``sp`` (:class:`sim.autopilot.AttitudeSetpoint`) as this
+        autopilot does, on ``autopilot`` (:class:`sim.autopilot.Autopilot`); whether it is
+        proof of life of the setpoint stream."""
+        raise NotImplementedError
 
     def land_detector(self):
         raise NotImplementedError
@@ -282,6 +428,35 @@ class Personality:
 
 
 class PX4(Personality):
+    def command_mode(self, p2, p3):
+        """param2 the main mode, param3 the sub mode (AUTO's only) (commander:
+        handle_command DO_SET_MODE)."""
+        main = int(p2) if math.isfinite(p2) else 0
+        sub = int(p3) if math.isfinite(p3) else 0
+        return self.mode_from_custom(px4_custom_mode(main, sub if main == 4 else 0))
+
+    def message_mode(self, custom_mode):
+        return self.command_mode((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
+
+    def rtl_altitude(self, params):
+        return float(params["RTL_RETURN_ALT"][0])
+
+    def takeoff_altitude(self, params, p7, home_alt):
+        """MIS_TAKEOFF_ALT, or param7 (AMSL) if it is at least 1 m above home."""
+        if math.isfinite(p7) and p7 - home_alt >= 1.0:
+            return p7 - home_alt
+        return float(params["MIS_TAKEOFF_ALT"][0])
+
+    def attitude_setpoint(self, autopilot, sp):
+        """mavlink_receiver.cpp handle_message_set_attitude_target: in OFFBOARD the attitude
+        and the raw thrust go straight to the attitude controller, not held by the spool-up
+        (COM_SPOOLUP_TIME gates mc_pos_control's takeoff and manual throttle only); a
+        setpoint that ignores the throttle keeps nothing alive (PX4 #27622)."""
+        autopilot.att_target = (sp.q, sp.thrust, sp.rates, sp.mask)
+        if autopilot.mode.behaviour == OFFBOARD and autopilot.vehicle.armed:
+            autopilot.fly_attitude(sp)
+        return not sp.throttle_ignored
+
     def land_detector(self):
         return PX4LandDetector()
 
@@ -332,6 +507,39 @@ class PX4(Personality):
 
 
 class ArduCopter(Personality):
+    def command_mode(self, p2, p3):
+        """param2 the mode number (GCS_MAVLINK::handle_command_do_set_mode)."""
+        return self.mode_from_custom(int(p2) if math.isfinite(p2) else -1)
+
+    def message_mode(self, custom_mode):
+        return self.command_mode(custom_mode, 0)
+
+    def base_mode_flags(self, mode):
+        """GCS_MAVLINK_Copter::base_mode: STABILIZE_ENABLED in every mode, GUIDED_ENABLED in
+        the guided modes."""
+        flags = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if mode.behaviour == OFFBOARD:
+            flags |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return flags
+
+    def rtl_altitude(self, params):
+        return float(params["RTL_ALT"][0]) / 100.0
+
+    def takeoff_altitude(self, params, p7, home_alt):
+        """param7, the altitude above home, in GUIDED (Mode::do_user_takeoff); denied unless
+        it is above home."""
+        return p7 if math.isfinite(p7) and p7 > 0.0 else None
+
+    def attitude_setpoint(self, autopilot, sp):
+        """GCS_MAVLINK_Copter::handle_message_set_attitude_target, in GUIDED / GUIDED_NOGPS
+        only (setpoints_only_in_offboard): every setpoint is proof of life; armed, it becomes
+        the target of GUIDED's attitude control (:class:`GuidedAngleControl`), which waits out
+        the arming delay."""
+        if autopilot.vehicle.armed:
+            autopilot.att_target = autopilot.guided.take(sp, autopilot.params,
+                                                         autopilot.vehicle.time)
+        return True
+
     def land_detector(self):
         return ArduCopterLandDetector()
 
@@ -413,7 +621,7 @@ def px4():
     return PX4("px4", mavlink.MAV_AUTOPILOT_PX4, modes, "AUTO.LOITER", params,
                _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, True,
                (1 << 24) | (15 << 16) | (0 << 8) | 255,
-               mode_aliases={"HOLD": "AUTO.LOITER", "POSITION": "POSCTL",
+               mode_aliases={"HOLD": "AUTO.LOITER", "LOITER": "AUTO.LOITER", "POSITION": "POSCTL",
                              "LAND": "AUTO.LAND", "TAKEOFF": "AUTO.TAKEOFF",
                              "RTL": "AUTO.RTL", "RETURN": "AUTO.RTL"},
                # HEARTBEAT is a constant-rate 1 Hz stream and nothing else sends one
@@ -421,9 +629,14 @@ def px4():
                heartbeat_on_mode_change=False,
                # COM_SPOOLUP_TIME gates mc_pos_control's takeoff (Takeoff.cpp) and manual
                # throttle (mc_att_control); offboard attitude setpoints go straight to the
-               # attitude controller (mavlink_receiver.cpp handle_message_set_attitude_target)
-               spoolup_param="COM_SPOOLUP_TIME", spoolup_holds_attitude_thrust=False,
-               offboard_loss_param="COM_OF_LOSS_T",
+               # attitude controller (PX4.attitude_setpoint)
+               spoolup_param="COM_SPOOLUP_TIME",
+               # failsafe.cpp: offboard loss after COM_OF_LOSS_T; Commander: OFFBOARD (and
+               # arming in it) refused without a setpoint stream; setpoints stored in any mode
+               offboard_timeout_param="COM_OF_LOSS_T", offboard_loss_failsafe=True,
+               offboard_needs_stream=True,
+               # Takeoff.cpp / Navigator: AUTO.TAKEOFF, then Hold at the takeoff altitude
+               takeoff_mode="AUTO.TAKEOFF", mode_after_takeoff="AUTO.LOITER",
                restores_mode_after_failsafe=True,
                # Commander: arming/disarming denied -> TEMPORARILY_REJECTED; mavlink_receiver:
                # SET_MESSAGE_INTERVAL without such a stream -> FAILED, REQUEST_MESSAGE -> DENIED
@@ -486,8 +699,13 @@ def ardupilot():
                       heartbeat_on_mode_change=True,
                       # motors.cpp: no motor interlock during the arming delay (motors shut
                       # down, whatever is asked)
-                      spoolup_param="SIM_ARMING_DELAY", spoolup_holds_attitude_thrust=True,
-                      offboard_loss_param=None,
+                      spoolup_param="SIM_ARMING_DELAY",
+                      # mode_guided.cpp: GUID_TIMEOUT levels and holds (GuidedAngleControl),
+                      # no failsafe; set_mode(GUIDED) needs no stream and, in the air, holds
+                      # the position; attitude and position targets only in the guided modes
+                      offboard_timeout_param="GUID_TIMEOUT", offboard_loss_failsafe=False,
+                      offboard_needs_stream=False, setpoints_only_in_offboard=True,
+                      offboard_entry_holds=True,
                       # GCS_MAVLINK::handle_command_component_arm_disarm: FAILED;
                       # set_message_interval without an ap_message: DENIED;
                       # handle_command_request_message without one: FAILED

@@ -37,6 +37,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from mavadrc.control.rotations import quat_from_euler
 from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_IYY, P_IZZ, P_KF, P_KM, P_MASS,
                         P_OMEGA_MAX, P_OMEGA_MIN, P_ROTOR_DIR, P_ROTOR_DRAG, P_ROTOR_INERTIA,
                         P_ROTOR_POS, P_SIZE, P_TAU_DOWN, P_TAU_UP)
@@ -44,7 +45,7 @@ from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_IYY, P_IZZ, P_KF, P_KM
 __all__ = [
     "GRAVITY", "IX_POS", "IX_VEL", "IX_Q", "IX_W", "IX_ROT", "NX",
     "derivatives", "step", "step_n", "step_batch",
-    "initial_state", "quat_from_euler", "euler_from_quat", "rotation_matrix",
+    "initial_state",
 ]
 
 GRAVITY = 9.80665
@@ -303,38 +304,6 @@ def step_batch(X, OMEGA_CMD, P, V_WIND, F_EXT, TAU_EXT, dt, n=1):
         float(dt),
         int(n),
     )
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Quaternion [w, x, y, z] for ZYX Euler angles (yaw, then pitch, then roll), body -> NED."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return np.array([
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ])
-
-
-def euler_from_quat(q) -> np.ndarray:
-    """ZYX Euler angles [roll, pitch, yaw] (rad) of a quaternion [w, x, y, z]."""
-    w, x, y, z = (float(c) for c in q)
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.array([roll, pitch, yaw])
-
-
-def rotation_matrix(q) -> np.ndarray:
-    """R(q) (3, 3), body FRD -> NED, of a unit quaternion [w, x, y, z]."""
-    w, x, y, z = (float(c) for c in q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 def initial_state(position=(0.0, 0.0, 0.0), yaw: float = 0.0, rotor_speed: float = 0.0,

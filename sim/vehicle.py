@@ -24,6 +24,7 @@ import numpy as np
 
 from mavadrc.control import geometry as G
 from mavadrc.control._jit import jit
+from mavadrc.control.rotations import level_quat, quat_to_euler
 
 from . import physics as phys
 from .firmware import attitude as A
@@ -348,7 +349,7 @@ class SimVehicle:
         y = self._xr if self.sensors is not None else self._x
         q = y[phys.IX_Q:phys.IX_Q + 4].copy()
         e = np.empty(3)
-        G.quat_to_euler(q, e)
+        quat_to_euler(q, e)
         return Reported(self.time, y[0:3].copy(), y[3:6].copy(), q, e,
                         y[phys.IX_W:phys.IX_W + 3].copy())
 
@@ -497,7 +498,7 @@ class SimVehicle:
         return float(self.reported().euler[2])
 
     def _set_idle(self):
-        self._sp[A.SP_Q:A.SP_Q + 4] = level_quaternion(self._yaw())
+        self._sp[A.SP_Q:A.SP_Q + 4] = level_quat(self._yaw())
         self._sp[A.SP_THRUST] = 0.0
         self._sp[A.SP_ATT_VALID] = 1.0
         self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
@@ -520,11 +521,6 @@ class SimVehicle:
             self._sp[A.SP_ATT_VALID] = 1.0
             self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
             self._mode = self.nav.mode
-
-
-def level_quaternion(yaw):
-    """Level attitude quaternion with heading ``yaw``."""
-    return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
 
 
 _LAGS = {}

@@ -99,7 +99,7 @@ def test_plot_record_pd_has_no_observer(tmp_path):
 def test_quat_to_euler_deg():
     r, p, y = np.radians([10.0, -20.0, 170.0])
     q = np.zeros(4)
-    from mavadrc.control.geometry import euler_to_quat
+    from mavadrc.control.rotations import euler_to_quat
 
     euler_to_quat(r, p, y, q)
     np.testing.assert_allclose(figures.quat_to_euler_deg(q[None, :])[0], [10.0, -20.0, 170.0],

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from mavadrc.control import geometry as G
+from mavadrc.control.rotations import quat_from_euler, quat_to_rotmat
 from sim.firmware import attitude as A
 from sim.firmware import position as PL
 from sim.firmware.mixer import Mixer
 from sim.params import load_vehicle
-from sim.physics import quat_from_euler
 
 
 @pytest.fixture(scope="module", params=["crazyflie", "x500"])
@@ -165,7 +165,7 @@ def test_position_loop_integral_resets_on_the_ground_and_respects_the_tilt_limit
     assert np.all(ps[PL.PS_INT:PL.PS_INT + 3] == 0.0)
     out, _, _ = _pos_step(_sp(acc=(50.0, 0.0, 0.0)))
     R = np.empty((3, 3))
-    G.quat_to_rotmat(out[0:4], R)
+    quat_to_rotmat(out[0:4], R)
     assert math.degrees(math.acos(R[2, 2])) == pytest.approx(35.0, abs=1e-6)  # mapping default
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mavadrc.control import rotations as rot
 from sim import physics as ph
 from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_KF, P_KM, P_ROTOR_DIR,
                         P_ROTOR_DRAG, P_ROTOR_INERTIA, load_vehicle)
@@ -38,7 +39,7 @@ def angular_momentum_world(x, P):
     dirs = P[P_ROTOR_DIR:P_ROTOR_DIR + 4]
     h = J * x[ph.IX_W:ph.IX_W + 3]
     h[2] -= P[P_ROTOR_INERTIA] * float(dirs @ x[ph.IX_ROT:ph.IX_ROT + 4])
-    return ph.rotation_matrix(x[ph.IX_Q:ph.IX_Q + 4]) @ h
+    return rot.rotation_matrix(x[ph.IX_Q:ph.IX_Q + 4]) @ h
 
 
 @pytest.mark.parametrize("name", ["crazyflie", "quad2kg", "x500"])
@@ -49,7 +50,7 @@ def test_hover_at_hover_rotor_speed_holds_altitude(name):
     ph.step_n(x, cmd, p.pack(), Z3, Z3, Z3, DT, 10_000)
     assert abs(x[2] + 10.0) < 1e-6
     assert np.allclose(x[:2], [1.0, 2.0], atol=1e-9)
-    assert np.allclose(x[ph.IX_Q:ph.IX_Q + 4], ph.quat_from_euler(0, 0, 0.7), atol=1e-12)
+    assert np.allclose(x[ph.IX_Q:ph.IX_Q + 4], rot.quat_from_euler(0, 0, 0.7), atol=1e-12)
     assert np.abs(x[ph.IX_VEL:ph.IX_VEL + 3]).max() < 1e-9
     assert np.abs(x[ph.IX_W:ph.IX_W + 3]).max() < 1e-12
 
@@ -133,7 +134,7 @@ def test_derivatives_match_thesis_eq4_in_ned(cf):
             rates = rng.uniform(-1, 1, 3) * angle_scale
             omega = cf.hover_omega * (1.0 + 0.05 * rng.uniform(-1, 1, 4))
             x = ph.initial_state((0.0, 0.0, -5.0))
-            x[ph.IX_Q:ph.IX_Q + 4] = ph.quat_from_euler(phi, th, psi)
+            x[ph.IX_Q:ph.IX_Q + 4] = rot.quat_from_euler(phi, th, psi)
             x[ph.IX_W:ph.IX_W + 3] = rates
             x[ph.IX_ROT:] = omega
             xd = np.empty(ph.NX)
@@ -154,8 +155,8 @@ def test_derivatives_match_thesis_eq4_in_ned(cf):
             if angle_scale < 0.01:
                 # Euler-angle rates from q' equal the body rates to first order
                 h = 1e-7
-                e1 = ph.euler_from_quat(x[6:10] + h * xd[6:10])
-                e0 = ph.euler_from_quat(x[6:10])
+                e1 = rot.euler_from_quat(x[6:10] + h * xd[6:10])
+                e0 = rot.euler_from_quat(x[6:10])
                 assert np.allclose((e1 - e0) / h, rates, atol=5e-5 * angle_scale / 1e-3)
 
 
@@ -220,7 +221,7 @@ def test_vehicle_rests_on_ground_and_lifts_off_above_weight(cf):
         assert x[2] == 0.0
     assert np.allclose(x[:2], [3.0, 4.0], atol=0)
     assert np.all(x[3:6] == 0.0) and np.all(x[10:13] == 0.0)
-    assert np.allclose(x[6:10], ph.quat_from_euler(0, 0, 1.0), atol=1e-12)
+    assert np.allclose(x[6:10], rot.quat_from_euler(0, 0, 1.0), atol=1e-12)
     # just above weight: lifts off and climbs
     cmd = np.full(4, 1.05 * h)
     lifted = None
@@ -239,7 +240,7 @@ def test_vehicle_rests_on_ground_and_lifts_off_above_weight(cf):
 
 def test_dropped_vehicle_stops_on_ground_level(cf):
     x = ph.initial_state((0.0, 0.0, -5.0))
-    x[6:10] = ph.quat_from_euler(0.3, -0.2, 0.5)
+    x[6:10] = rot.quat_from_euler(0.3, -0.2, 0.5)
     x[10:13] = [1.0, -2.0, 0.5]
     lowest = -5.0
     for _ in range(2000):
@@ -247,7 +248,7 @@ def test_dropped_vehicle_stops_on_ground_level(cf):
         lowest = max(lowest, x[2])
     assert lowest == 0.0 and x[2] == 0.0
     assert np.all(x[3:6] == 0.0) and np.all(x[10:13] == 0.0)
-    roll, pitch, _ = ph.euler_from_quat(x[6:10])
+    roll, pitch, _ = rot.euler_from_quat(x[6:10])
     assert roll == 0.0 and pitch == 0.0
 
 
@@ -259,7 +260,7 @@ def _batch_case():
     X[:, 3:6] += rng.normal(0, 1, (5, 3))
     X[:, 10:13] += rng.normal(0, 0.5, (5, 3))
     for i in range(5):
-        X[i, 6:10] = ph.quat_from_euler(*rng.normal(0, 0.2, 3))
+        X[i, 6:10] = rot.quat_from_euler(*rng.normal(0, 0.2, 3))
     CMD = np.array([p.hover_omega * (1 + 0.03 * rng.normal(size=4)) for p in params])
     P = np.array([p.pack() for p in params])
     return X, CMD, P, rng.normal(0, 2, (5, 3)), rng.normal(0, 0.01, (5, 3)), \

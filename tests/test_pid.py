@@ -15,6 +15,7 @@ from mavadrc.control import PD, PID, PositionController
 from mavadrc.control import geometry as G
 from mavadrc.control import kernels as K
 from mavadrc.control.channels import pid_gains, pid_params
+from mavadrc.control.rotations import quat_to_rotmat
 from mavadrc.flight import default_gains, make_controller
 from mavadrc.mission import load_mission
 from sim.yamlio import ConfigError
@@ -204,7 +205,7 @@ def test_px4_default_gains_fly_the_point_mass():
 
 def thrust_acceleration(q, thrust, tpa):
     R = np.empty((3, 3))
-    G.quat_to_rotmat(np.asarray(q, dtype=float), R)
+    quat_to_rotmat(np.asarray(q, dtype=float), R)
     return -R[:, 2] * thrust / tpa + np.array([0.0, 0.0, G.GRAVITY])
 
 

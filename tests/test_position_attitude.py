@@ -7,6 +7,7 @@ import pytest
 
 from mavadrc.control import AttitudeController, PositionController, acceleration_to_attitude
 from mavadrc.control import geometry as G
+from mavadrc.control import rotations as rot
 from mavadrc.trajectories import Circle
 
 GRAV = G.GRAVITY
@@ -14,13 +15,13 @@ GRAV = G.GRAVITY
 
 def rotmat(q):
     R = np.empty((3, 3))
-    G.quat_to_rotmat(np.asarray(q, dtype=float), R)
+    rot.quat_to_rotmat(np.asarray(q, dtype=float), R)
     return R
 
 
 def euler(q):
     e = np.empty(3)
-    G.quat_to_euler(np.asarray(q, dtype=float), e)
+    rot.quat_to_euler(np.asarray(q, dtype=float), e)
     return e
 
 
@@ -43,7 +44,7 @@ def test_the_map_reproduces_the_commanded_acceleration_and_honours_yaw():
         assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-12)
         assert np.allclose(applied, acc, atol=1e-12)  # inside the limits nothing is cut
         assert np.allclose(thrust_acceleration(q, thrust, hover / GRAV), acc, atol=1e-9)
-        assert G.wrap_pi(euler(q)[2] - yaw) == pytest.approx(0.0, abs=1e-9)
+        assert rot.wrap_pi(euler(q)[2] - yaw) == pytest.approx(0.0, abs=1e-9)
 
 
 def test_mass_and_max_thrust_normalisation():
@@ -96,7 +97,7 @@ def test_euler_quaternion_round_trip():
     rng = np.random.default_rng(5)
     for r, p, y in rng.uniform([-3, -1.5, -3], [3, 1.5, 3], (200, 3)):
         q = np.empty(4)
-        G.euler_to_quat(r, p, y, q)
+        rot.euler_to_quat(r, p, y, q)
         assert np.allclose(euler(q), [r, p, y], atol=1e-9)
 
 
@@ -220,7 +221,7 @@ def fly_rigid_body(ctrl, ref_euler, T, inertia, h=0.001, tau_ext=(0.0, 0.0, 0.0)
     n = int(round(T / h))
     hist = np.empty((n, 3))
     for k in range(n):
-        G.quat_to_euler(q, e)
+        rot.quat_to_euler(q, e)
         tau = ctrl.update(e, w, ref_euler)
         sub = 10
         dt = h / sub
@@ -234,7 +235,7 @@ def fly_rigid_body(ctrl, ref_euler, T, inertia, h=0.001, tau_ext=(0.0, 0.0, 0.0)
                 q[0] * qw[2] - q[1] * qw[3] + q[2] * qw[0] + q[3] * qw[1],
                 q[0] * qw[3] + q[1] * qw[2] - q[2] * qw[1] + q[3] * qw[0]])
             q /= np.linalg.norm(q)
-        G.quat_to_euler(q, e)
+        rot.quat_to_euler(q, e)
         hist[k] = e
     return hist
 
@@ -264,8 +265,8 @@ def test_pd_attitude_leaves_the_torque_offset():
 def test_yaw_crossing_pi_takes_the_short_way():
     ctrl = AttitudeController("ladrc", h=0.001, inertia=CF, wc=(25, 25, 10), wo=(120, 120, 50))
     q0 = np.empty(4)
-    G.euler_to_quat(0.0, 0.0, math.radians(170), q0)
+    rot.euler_to_quat(0.0, 0.0, math.radians(170), q0)
     hist = fly_rigid_body(ctrl, (0.0, 0.0, math.radians(-170)), 2.0, CF, q0=q0)
     unwrapped = np.unwrap(hist[:, 2])
     assert unwrapped.max() < math.radians(192)  # went through 180, not back through 0
-    assert abs(G.wrap_pi(hist[-1, 2] - math.radians(-170))) < 1e-4
+    assert abs(rot.wrap_pi(hist[-1, 2] - math.radians(-170))) < 1e-4

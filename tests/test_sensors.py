@@ -4,7 +4,8 @@ requested size."""
 import numpy as np
 import pytest
 
-from sim.physics import NX, quat_from_euler
+from mavadrc.control.rotations import quat_from_euler
+from sim.physics import NX
 from sim.sensors import Sensors
 
 

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from mavadrc.control.rotations import quat_from_euler
 from sim.batch import BatchVehicles
-from sim.physics import quat_from_euler
 from sim.vehicle import CommandRejected, SimVehicle
 from sim.wind import Wind
 

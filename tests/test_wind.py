@@ -9,6 +9,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 from scipy.signal import welch
 
+from mavadrc.control import rotations as rot
 from sim import physics as ph
 from sim.params import load_vehicle
 from sim.wind import (DRYDEN_W20, KNOT, CompositeWind, ConstantWind, DrydenTurbulence,
@@ -168,7 +169,7 @@ def test_drag_from_the_air_relative_velocity_gives_the_predicted_acceleration():
     wind = np.array([1.0, -2.0, 0.5])
     xd = np.empty(ph.NX)
     ph.derivatives(x, np.full(4, cf.hover_omega), cf.pack(), wind, Z3, Z3, xd)
-    R = ph.rotation_matrix(x[6:10])
+    R = rot.rotation_matrix(x[6:10])
     wb = R.T @ wind
     f = (cf.drag_linear + cf.drag_quadratic * np.linalg.norm(wind)) * wb
     f[:2] += 4 * cf.rotor_drag * cf.hover_omega * wb[:2]

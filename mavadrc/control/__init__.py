@@ -3,7 +3,8 @@
 Classical ADRC (Han's TD + NLESO + NLSEF), linear ADRC (Gao's bandwidth form with the ZOH current
 observer), the PD baseline and a PX4-style cascaded PID, each on one channel; the position
 controller (three channels and the geometric map to attitude + thrust) and the attitude controller
-(three channels to torques).
+(three channels to torques); the rotations (quaternions, Euler angles) that these laws, the
+bundled vehicle and the figures share.
 The laws are the corrected forms of the thesis's equations; see the README.
 """
 

@@ -10,11 +10,11 @@ import math
 
 import numpy as np
 
-from . import geometry as G
 from . import kernels as K
 from ._jit import jit
 from .channels import nonfinite_arrays
 from .position import axis_params
+from .rotations import wrap_pi
 
 # unwrap state layout
 W_YAW = 0  # last unwrapped yaw
@@ -46,9 +46,9 @@ def attitude_update(S, P, euler, rates, ref, ref_rate, ref_acc, W, tau):
         yaw = euler[2]
         W[W_INIT] = 1.0
     else:
-        yaw = W[W_YAW] + G.wrap_pi(euler[2] - W[W_YAW])
+        yaw = W[W_YAW] + wrap_pi(euler[2] - W[W_YAW])
     W[W_YAW] = yaw
-    yaw_ref = yaw + G.wrap_pi(ref[2] - yaw)
+    yaw_ref = yaw + wrap_pi(ref[2] - yaw)
     tau[0] = K.channel_update(S[0], P[0], phi, phidot, ref[0], ref_rate[0], ref_acc[0],
                               P[0, K.P_H])
     tau[1] = K.channel_update(S[1], P[1], th, thdot, ref[1], ref_rate[1], ref_acc[1],

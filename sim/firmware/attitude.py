@@ -39,10 +39,10 @@ import math
 import numpy as np
 
 from mavadrc.control import AttitudeController
-from mavadrc.control import geometry as G
 from mavadrc.control import kernels as K
 from mavadrc.control._jit import jit
 from mavadrc.control.attitude import attitude_update
+from mavadrc.control.rotations import quat_to_euler
 
 from .mixer import MX_A, NWK_MIX, mix
 
@@ -264,8 +264,8 @@ def inner_step(fs, fp, S, P, W, mx, x, sp, omega, wk):
         if landed:
             S[:, :] = 0.0  # the ground holds the vehicle: restart the observers at lift-off
             W[:] = 0.0
-        G.quat_to_euler(q, eul)
-        G.quat_to_euler(sp[SP_Q:SP_Q + 4], ref)
+        quat_to_euler(q, eul)
+        quat_to_euler(sp[SP_Q:SP_Q + 4], ref)
         for i in range(3):
             zero[i] = 0.0
         # no reference rates or accelerations: classical ADRC feeds its TD's own forward

@@ -23,6 +23,7 @@ import numpy as np
 
 from mavadrc.control import geometry as G
 from mavadrc.control._jit import jit
+from mavadrc.control.rotations import wrap_pi
 
 from . import attitude as A
 
@@ -276,7 +277,7 @@ class Navigator:
                 self._set(pos=self.sp[PSP_POS:PSP_POS + 3].copy())
                 self.mode = "hold"
         elif math.isfinite(self.yaw_rate):
-            self.yaw = G.wrap_pi(self.yaw + self.yaw_rate * self.h)
+            self.yaw = wrap_pi(self.yaw + self.yaw_rate * self.h)
         position_step(self.ps, self.pp, self.M, np.asarray(pos, dtype=float),
                       np.asarray(vel, dtype=float), self.sp, self.yaw, landed, self.out)
         return self.out[G.O_Q:G.O_Q + 4], float(self.out[G.O_THRUST])
