@@ -119,17 +119,15 @@ def _old_channel_update(s, p, y, ydot, r, rdot, rddot):
         _old_nleso_step(s, p, y)
         if p[K.P_TD] != 0.0:
             _old_td_step(s, p, r)
-            ff = s[K.S_FH]  # the TD's own acceleration fed forward
         else:
             s[K.S_V1], s[K.S_V2] = r, rdot
-            ff = rddot
         e1 = s[K.S_V1] - s[K.S_Z1]
         e2 = s[K.S_V2] - s[K.S_Z2]
         if p[K.P_LAW] == K.LAW_FHAN:
-            u0 = -fhan(e1, p[K.P_C] * e2, p[K.P_R], p[K.P_H1]) + ff
+            u0 = -fhan(e1, p[K.P_C] * e2, p[K.P_R], p[K.P_H1]) + rddot
         else:
             u0 = (p[K.P_K1] * fal(e1, p[K.P_A1], p[K.P_DL])
-                  + p[K.P_K2] * fal(e2, p[K.P_A2], p[K.P_DL]) + ff)
+                  + p[K.P_K2] * fal(e2, p[K.P_A2], p[K.P_DL]) + rddot)
         u = (u0 - s[K.S_Z3]) / b0
     elif kind == K.KIND_PID:
         u0 = _old_pid_step(s, p, y, ydot, r, rdot, rddot)

@@ -411,9 +411,8 @@ class HanADRC(_ObservedChannel):
 
         (v1, v2) = TD(r)                      (or (r, rdot) with td=False)
         e1 = v1 - z1 ;  e2 = v2 - z2
-        u0 = -fhan(e1, c*e2, r, h1) + a   (law="fhan")
-           = k1 fal(e1, a1, d) + k2 fal(e2, a2, d) + a   (law="fal", a1 < 1 < a2)
-        a = the TD's own acceleration fh (rddot with td=False)
+        u0 = -fhan(e1, c*e2, r, h1) + rddot   (law="fhan")
+           = k1 fal(e1, a1, d) + k2 fal(e2, a2, d) + rddot   (law="fal", a1 < 1 < a2)
         u  = (u0 - z3) / b0
 
     Corrected against the thesis (eqs. 42-47 print ``+ z3`` and ``c*e1``).  ``h1 = 10h`` and

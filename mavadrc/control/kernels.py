@@ -475,17 +475,15 @@ def _channel_step(s, p, y, ydot, r, rdot, rddot, h):
         nleso_step(s, p, y, h)
         if p[P_TD] != 0.0:
             td_step(s, p, r, h)
-            ff = s[S_FH]  # the TD's own acceleration: the feed-forward of its (v1, v2)
         else:
             s[S_V1] = r
             s[S_V2] = rdot
-            ff = rddot
         e1 = s[S_V1] - s[S_Z1]
         e2 = s[S_V2] - s[S_Z2]
         if p[P_LAW] == LAW_FHAN:
-            u0 = -fhan(e1, p[P_C] * e2, p[P_R], p[P_H1]) + ff
+            u0 = -fhan(e1, p[P_C] * e2, p[P_R], p[P_H1]) + rddot
         else:
-            u0 = p[P_K1] * fal(e1, p[P_A1], p[P_DL]) + p[P_K2] * fal(e2, p[P_A2], p[P_DL]) + ff
+            u0 = p[P_K1] * fal(e1, p[P_A1], p[P_DL]) + p[P_K2] * fal(e2, p[P_A2], p[P_DL]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_PID:
         u0 = pid_step(s, p, y, ydot, r, rdot, rddot, h)

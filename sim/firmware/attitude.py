@@ -16,8 +16,8 @@ control of the selected kind, thrust scaling and the mixer of :mod:`sim.firmware
   'command'``), the LESO of a 30 g Crazyflie, whose motors lag 50 ms, takes that lag for a
   disturbance and the loop oscillates at every bandwidth that meets a 0.3 s step, and on an
   x500 the yaw channel limit-cycles: the rotor reaction is ~10x the drag torque at high
-  frequency, far outside the b/b0 range an ESO tolerates.  Classical ADRC feeds its TD's own
-  acceleration forward (the kernel does, with the TD on); without it the NLSEF lags the TD
+  frequency, far outside the b/b0 range an ESO tolerates.  Classical ADRC also gets its TD's
+  acceleration (from the previous step) as feed-forward; without it the NLSEF lags the TD
   profile and overshoots.
 
 A setpoint that ignores the attitude (body rates only) goes to the rate PID whatever the kind:
@@ -99,10 +99,11 @@ WK_RSP = 6  # 3
 WK_EUL = 9  # 3
 WK_REF = 12  # 3
 WK_ZERO = 15  # 3
-WK_MODEL = 18  # 4: motor-model wrench
-WK_W2 = 22  # 4
-WK_QERR = 26  # 8: attitude_error
-WK_MIX = 34  # NWK_MIX: mixer
+WK_RACC = 18  # 3
+WK_MODEL = 21  # 4: motor-model wrench
+WK_W2 = 25  # 4
+WK_QERR = 29  # 8: attitude_error
+WK_MIX = 37  # NWK_MIX: mixer
 NWK = WK_MIX + NWK_MIX
 
 _RATE_I_FADE = math.radians(400.0)  # rate error at which the integral stops growing (PX4)
@@ -261,6 +262,7 @@ def inner_step(fs, fp, S, P, W, mx, x, sp, omega, wk):
         eul = wk[WK_EUL:WK_EUL + 3]
         ref = wk[WK_REF:WK_REF + 3]
         zero = wk[WK_ZERO:WK_ZERO + 3]
+        racc = wk[WK_RACC:WK_RACC + 3]
         if landed:
             S[:, :] = 0.0  # the ground holds the vehicle: restart the observers at lift-off
             W[:] = 0.0
@@ -268,8 +270,8 @@ def inner_step(fs, fp, S, P, W, mx, x, sp, omega, wk):
         quat_to_euler(sp[SP_Q:SP_Q + 4], ref)
         for i in range(3):
             zero[i] = 0.0
-        # no reference rates or accelerations: classical ADRC feeds its TD's own forward
-        attitude_update(S, P, eul, rates, ref, zero, zero, W, tau)
+            racc[i] = S[i, K.S_FH]
+        attitude_update(S, P, eul, rates, ref, zero, racc, W, tau)
         fs[FS_INIT] = 0.0
         for i in range(3):
             fs[FS_INT + i] = 0.0
