@@ -67,6 +67,12 @@ class EmbeddedVehicle:
             cmd += ["--lockstep", "--lockstep-rate", str(rate_hz)]
         if mission.noise:
             cmd += ["--noise"]
+        if mission.sensor_latency_s:
+            cmd += ["--latency", repr(mission.sensor_latency_s)]
+        if mission.link is not None:
+            path = workdir / "link.yaml"
+            path.write_text(yaml.safe_dump(mission.link.as_dict()))
+            cmd += ["--link", str(path)]
         if mission.heading_deg:
             cmd += ["--heading", str(mission.heading_deg)]
         if signing_key is not None:

@@ -84,10 +84,14 @@ class Scenario:
     @functools.cached_property
     def random(self):
         """True when the seed changes this scenario's runs: its wind draws random numbers
-        (Dryden turbulence) or it flies with sensor noise.  Otherwise every seed flies the
-        same run, and an experiment flies it once (:func:`mavadrc.compare.run_matrix`)."""
+        (Dryden turbulence), it flies with sensor noise, or its link draws loss or jitter.
+        Otherwise every seed flies the same run, and an experiment flies it once
+        (:func:`mavadrc.compare.run_matrix`)."""
         m = self.mission
         if m.noise:
+            return True
+        if m.link is not None and any(w.loss > 0.0 or w.jitter_s > 0.0
+                                      for w in (m.link.down, m.link.up)):
             return True
         if m.wind is None:
             return False

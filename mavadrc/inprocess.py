@@ -34,6 +34,7 @@ import numpy as np
 
 from sim import physics as phys
 from sim.firmware import attitude as A
+from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
 from sim.vehicle import SimVehicle, advance_wind_into
 from sim.wind import WIND_SCRATCH
@@ -72,8 +73,10 @@ NLOG = 36
 STATUS_OK = 0
 STATUS_BREACH = 1
 STATUS_NONFINITE = 2
+STATUS_LINK = 3
 STATUS_NAMES = {STATUS_OK: None, STATUS_BREACH: "safety limit breached",
-                STATUS_NONFINITE: "the controller produced a non-finite setpoint"}
+                STATUS_NONFINITE: "the controller produced a non-finite setpoint",
+                STATUS_LINK: "link: a gap between samples past the mission's limit"}
 
 
 def f32(x):
@@ -113,17 +116,36 @@ def _lifted(pos, vel, origin, rules):
 
 
 @jit
-def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
-                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, times, Sc, Pc, Mc, INc, refs,
-                oracle, limits, origin, rules, lifted, yaw_offset, log):
-    """Fly the mission steps of ``refs`` (N, 10: pos, vel, acc, yaw) from tick ``tick0``.
+def _store(x, k, spos, svel, syaw, e, eul):
+    """The float32 sample (position, velocity, heading) the vehicle takes at period ``k``."""
+    for i in range(3):
+        spos[k, i] = _f32(x[i])
+        svel[k, i] = _f32(x[3 + i])
+    for i in range(4):
+        e[i] = x[phys.IX_Q + i]
+    quat_to_euler(e, eul)
+    syaw[k] = _f32(eul[2])
 
-    Each step: sample (float32), control over the interval since the last sample (``times``:
-    sample times from the controller's start at t = 0), setpoint (float32), ``per`` physics
-    steps.  ``limits`` = [north lo, hi, east lo, hi, altitude lo, hi, max speed] relative to
-    ``origin``.  Until ``lifted`` the observers hold no disturbance; the reference's heading is
-    offset by ``yaw_offset``, turned to 0 at ``rules[2]`` (:data:`GROUND_RULES`).  Fills ``log`` row by row; returns (rows
-    written, status).
+
+@jit
+def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
+                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, k0, k_end, delivered, applied,
+                lag, stimes, t0, spos, svel, syaw, spq, spt, refs, Sc, Pc, Mc, INc, oracle,
+                limits, max_gap, origin, rules, lifted, yaw_offset, log):
+    """Fly the mission from period ``k0`` (periods count from the arming) to at most ``k_end``.
+
+    Each period ``k``: the vehicle takes its sample (``spos``/``svel``/``syaw`` at ``k``); if
+    the companion gets one now (``delivered[k]`` = the period it was taken, -1: none) it runs
+    a control step on it (data of period ``s - lag``: the sensor latency, at the sample's time
+    ``stimes[s]``, mission time from ``t0``; the interval since the last sample it got), the
+    reference of ``refs`` row by row (N, 10: pos, vel, acc, yaw), and makes a setpoint (float32,
+    into ``spq``/``spt`` at ``k``); the vehicle applies setpoint ``applied[k]`` if one arrives
+    (-1: keeps the last) and runs ``per`` physics steps.  ``limits`` = [north lo, hi, east lo,
+    hi, altitude lo, hi, max speed] relative to ``origin``; ``max_gap``: the longest interval
+    between mission samples before the flight ends.  Until ``lifted`` the observers hold no
+    disturbance; the reference's heading is offset by ``yaw_offset``, turned to 0 at
+    ``rules[2]`` (:data:`GROUND_RULES`).  The run ends after the row whose time reaches the
+    last reference.  Fills ``log`` row by row; returns (rows written, status, periods flown).
     """
     pos = np.empty(3)
     vel = np.empty(3)
@@ -138,78 +160,97 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     ws = np.empty((5, phys.NX))
     xdot = np.empty(phys.NX)
     tick = tick0
-    for j in range(refs.shape[0]):
-        for i in range(3):
-            pos[i] = _f32(x[i])
-            vel[i] = _f32(x[3 + i])
-            rpos[i] = refs[j, i]
-            rvel[i] = refs[j, 3 + i]
-            racc[i] = refs[j, 6 + i]
-        phys.disturbance_accel_into(x, omega, pv, v_wind, f_ext, tau_ext, dist, xdot)
-        if oracle:
+    j = 0
+    nrows = refs.shape[0]
+    prev = -1.0
+    for k in range(k0, k_end):
+        _store(x, k, spos, svel, syaw, e, eul)
+        s = delivered[k]
+        if s >= 0:
+            d = max(s - lag, 0)
             for i in range(3):
-                racc[i] -= dist[i]
-        hc = times[j] - (times[j - 1] if j > 0 else 0.0)
-        if yaw_offset != 0.0:
-            yaw_offset -= max(-rules[2] * hc, min(rules[2] * hc, yaw_offset))
-        yaw_ref = refs[j, 9] + yaw_offset
-        ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc)
-        if not lifted:
-            if _lifted(pos, vel, origin, rules):
-                lifted = True
-            else:
-                position_hold_disturbance(Sc)
-        row = log[j]
-        row[L_T] = times[j]
-        for i in range(3):
-            row[L_REF + i] = rpos[i]
-            row[L_POS + i] = pos[i]
-            row[L_VEL + i] = vel[i]
-            row[L_ACC_CMD + i] = out[G.NO + i]
-            row[L_ACC + i] = out[G.O_ACC + i]
-            row[L_Z3 + i] = Sc[i, K.S_Z3]
-            row[L_DIST + i] = dist[i]
-        for i in range(4):
-            e[i] = x[phys.IX_Q + i]
-            row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
-        quat_to_euler(e, eul)
-        row[L_YAW] = eul[2]
-        row[L_REF_YAW] = yaw_ref
-        for i in range(3):
-            row[L_REF_ACC + i] = refs[j, 6 + i]
-        if not ok:
-            return j + 1, STATUS_NONFINITE
-        for i in range(4):
-            e[i] = _f32(out[G.O_Q + i])
-            row[L_Q + i] = e[i]
-        thrust = _f32(out[G.O_THRUST])
-        row[L_THRUST] = thrust
-        # the flight's safety checks, on the sample, after logging it
-        north = pos[0] - origin[0]
-        east = pos[1] - origin[1]
-        alt = -(pos[2] - origin[2])
-        speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
-        if not (limits[0] <= north <= limits[1] and limits[2] <= east <= limits[3]) or \
-                alt > limits[5] or alt < limits[4] or speed > limits[6]:
-            return j + 1, STATUS_BREACH
-        _attitude_setpoint(sp, e[0], e[1], e[2], e[3], thrust)
+                pos[i] = spos[d, i]
+                vel[i] = svel[d, i]
+                rpos[i] = refs[j, i]
+                rvel[i] = refs[j, 3 + i]
+                racc[i] = refs[j, 6 + i]
+            phys.disturbance_accel_into(x, omega, pv, v_wind, f_ext, tau_ext, dist, xdot)
+            if oracle:
+                for i in range(3):
+                    racc[i] -= dist[i]
+            t = stimes[s] - t0
+            hc = t - (prev if j > 0 else 0.0)
+            gap = j > 0 and hc > max_gap
+            prev = t
+            if yaw_offset != 0.0:
+                yaw_offset -= max(-rules[2] * hc, min(rules[2] * hc, yaw_offset))
+            yaw_ref = refs[j, 9] + yaw_offset
+            ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc)
+            if not lifted:
+                if _lifted(pos, vel, origin, rules):
+                    lifted = True
+                else:
+                    position_hold_disturbance(Sc)
+            row = log[j]
+            row[L_T] = t
+            for i in range(3):
+                row[L_REF + i] = rpos[i]
+                row[L_POS + i] = pos[i]
+                row[L_VEL + i] = vel[i]
+                row[L_ACC_CMD + i] = out[G.NO + i]
+                row[L_ACC + i] = out[G.O_ACC + i]
+                row[L_Z3 + i] = Sc[i, K.S_Z3]
+                row[L_DIST + i] = dist[i]
+            for i in range(4):
+                row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
+            row[L_YAW] = syaw[d]
+            row[L_REF_YAW] = yaw_ref
+            for i in range(3):
+                row[L_REF_ACC + i] = refs[j, 6 + i]
+            j += 1
+            if not ok:
+                return j, STATUS_NONFINITE, k - k0
+            for i in range(4):
+                spq[k, i] = _f32(out[G.O_Q + i])
+                row[L_Q + i] = spq[k, i]
+            spt[k] = _f32(out[G.O_THRUST])
+            row[L_THRUST] = spt[k]
+            # the flight's safety checks, on the sample, after logging it
+            if gap:
+                return j, STATUS_LINK, k - k0
+            north = pos[0] - origin[0]
+            east = pos[1] - origin[1]
+            alt = -(pos[2] - origin[2])
+            speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
+            if not (limits[0] <= north <= limits[1] and limits[2] <= east <= limits[3]) or \
+                    alt > limits[5] or alt < limits[4] or speed > limits[6]:
+                return j, STATUS_BREACH, k - k0
+        a = applied[k]
+        if a >= 0:
+            _attitude_setpoint(sp, spq[a, 0], spq[a, 1], spq[a, 2], spq[a, 3], spt[a])
         advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
                           eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
                           per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
-    return refs.shape[0], STATUS_OK
+        if j == nrows:
+            return j, STATUS_OK, k - k0 + 1
+    return j, STATUS_LINK, k_end - k0
 
 
 @jit
 def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext, tau_ext,
-          dt, tick0, att_div, pos_div, pos_dt, per, thrusts, origin, rules, start):
-    """The flight's ground phase, one setpoint per control period: level at the measured
-    heading (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it) with thrust ``thrusts[j]``
-    (idle, then the spool-up ramp), then ``per`` physics steps.
+          dt, tick0, att_div, pos_div, pos_dt, per, n, delivered, applied, lag, stimes,
+          thrusts, last_k, spos, svel, syaw, spq, spt, origin, rules, start):
+    """The flight's ground phase from the arming (period 0), one setpoint per sample the
+    companion gets (``delivered``, as in :func:`closed_loop`): level at the sample's heading
+    (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it) with the spool-up thrust of the
+    sample's time (``thrusts``, by the period the sample was taken), applied as ``applied``
+    says, then ``per`` physics steps.
 
-    Ends after the sample that shows the vehicle lifting off (relative to ``origin``), or after
-    the last thrust; ``start`` gets that sample's float32 position and heading (where the
-    mission starts).  Returns the number of setpoints sent."""
+    Ends after the sample that shows the vehicle lifting off (relative to ``origin``) or the
+    one taken at ``last_k`` or later (the mission's start time); ``start`` gets that sample's
+    float32 position and heading (where the mission starts) and the period it was taken.
+    Returns the number of periods flown (0: no such sample within ``n``)."""
     e = np.empty(4)
     eul = np.empty(3)
     pos = np.empty(3)
@@ -217,29 +258,37 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
     scratch = np.empty(WIND_SCRATCH)
     ws = np.empty((5, phys.NX))
     tick = tick0
-    n = thrusts.shape[0]
-    for j in range(n):
-        for i in range(3):
-            pos[i] = _f32(x[i])
-            vel[i] = _f32(x[3 + i])
-        for i in range(4):
-            e[i] = x[phys.IX_Q + i]
-        quat_to_euler(e, eul)
-        yaw = _f32(eul[2])
-        last = j == n - 1 or _lifted(pos, vel, origin, rules)
-        if last:
+    for k in range(n):
+        _store(x, k, spos, svel, syaw, e, eul)
+        s = delivered[k]
+        last = False
+        if s >= 0:
+            d = max(s - lag, 0)
             for i in range(3):
-                start[i] = pos[i]
-            start[3] = yaw
-        _attitude_setpoint(sp, _f32(math.cos(0.5 * yaw)), 0.0, 0.0, _f32(math.sin(0.5 * yaw)),
-                           thrusts[j])
+                pos[i] = spos[d, i]
+                vel[i] = svel[d, i]
+            yaw = syaw[d]
+            last = s >= last_k or _lifted(pos, vel, origin, rules)
+            if last:
+                for i in range(3):
+                    start[i] = pos[i]
+                start[3] = yaw
+                start[4] = s
+            spq[k, 0] = _f32(math.cos(0.5 * yaw))
+            spq[k, 1] = 0.0
+            spq[k, 2] = 0.0
+            spq[k, 3] = _f32(math.sin(0.5 * yaw))
+            spt[k] = thrusts[s]
+        a = applied[k]
+        if a >= 0:
+            _attitude_setpoint(sp, spq[a, 0], spq[a, 1], spq[a, 2], spq[a, 3], spt[a])
         advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
                           eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
                           per, tick, att_div, pos_div, pos_dt, scratch, ws)
         tick += per
         if last:
-            return j + 1
-    return n
+            return k + 1
+    return 0
 
 
 @dataclass
@@ -279,15 +328,19 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     spec = mission.controller
     seed = mission.seed if seed is None else seed
     wind = mission.wind if wind is None else wind
+    options = {"yaw": math.radians(mission.heading_deg), **dict(vehicle_options or {})}
     v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,
-                   attitude_controller=mission.attitude_controller,
-                   **dict(vehicle_options or {}))
+                   attitude_controller=mission.attitude_controller, **options)
     h = 1.0 / spec.rate_hz
     dt = v.physics_dt
     per = int(round(h / dt))
     if abs(per * dt - h) > 1e-9 * h:
         raise ValueError(f"controller rate {spec.rate_hz:g} Hz must divide the physics rate "
                          f"{1.0 / dt:g} Hz for the in-process path")
+    lag = int(round(mission.sensor_latency_s / h))
+    if abs(lag * h - mission.sensor_latency_s) > 1e-9:
+        raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "
+                         f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
                            vehicle=v.params, attitude_controller=mission.attitude_controller)
@@ -297,44 +350,66 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     origin = f32(r.position)
     traj, phases = mission.build_trajectory(origin)
     v.arm()
-    # idle and spool-up setpoints, one per control period, up to and including the sample at
-    # MISSION_START (the flight resets its controller there and sends the last spool setpoint)
+    # periods from the arming on: the samples the companion gets and the setpoints the vehicle
+    # applies, as the link decides them (every one, at once, on a perfect link)
     state = v.kernel_state()
     packed, wind_out = v.kernel_wind()
     fw = v.fw
     timing = (fw.att_div, fw.pos_div, fw.pos_dt, per)
     tick0 = v.tick
-    n_max = int(math.ceil((MISSION_START - ARM_AT) / h)) + 3
-    ts_pre = boot_seconds(tick0 + per * np.arange(n_max), dt)
-    n_pre = int(np.argmax(ts_pre >= MISSION_START - 1e-9))
-    t0 = float(ts_pre[n_pre])
-    thrusts = f32(spool_thrust(ts_pre[:n_pre + 1], MISSION_START, hover))
-    eta = packed.normals((n_pre + 1) * per)
-    start = np.zeros(4)
-    sent = spool(*state, packed.params, packed.state, eta, *wind_out, dt, tick0, *timing, thrusts,
+    link = mission.link
+    slack = 0 if link is None else \
+        int(math.ceil((max(link.down.latency_s + link.down.jitter_s,
+                           link.up.latency_s + link.up.jitter_s)
+                       + sum(d for _, d in link.blackouts)) / h)) + 200
+    n_pre = int(math.ceil((MISSION_START - ARM_AT) / h)) + 3 + slack
+    n = n_pre + int(math.ceil((traj.duration + 2 * h) / h)) + 2 + slack
+    stimes = boot_seconds(tick0 + per * np.arange(n), dt)
+    delivered = np.arange(n, dtype=np.int64)
+    applied = np.arange(n, dtype=np.int64)
+    if link is not None:  # from LINK_FROM on, as the lockstep vehicle applies it
+        k_link = int(np.argmax(stimes >= LINK_FROM - 1e-9))
+        d, a = PeriodLink(link, seed, h, float(stimes[k_link])).arrays(n - k_link)
+        delivered[k_link:] = np.where(d >= 0, d + k_link, -1)
+        applied[k_link:] = np.where(a >= 0, a + k_link, -1)
+    last_k = int(np.argmax(stimes >= MISSION_START - 1e-9))
+    thrusts = f32(spool_thrust(stimes, MISSION_START, hover))
+    spos = np.zeros((n, 3))
+    svel = np.zeros((n, 3))
+    syaw = np.zeros(n)
+    spq = np.zeros((n, 4))
+    spt = np.zeros(n)
+    eta = packed.normals(n * per)  # the wind's draws, in the order the vehicle makes them
+    start = np.zeros(5)
+    sent = spool(*state, packed.params, packed.state, eta, *wind_out, dt, tick0, *timing, n_pre,
+                 delivered, applied, lag, stimes, thrusts, last_k, spos, svel, syaw, spq, spt,
                  origin, GROUND_RULES, start)
+    if sent == 0:
+        raise RuntimeError("the link delivered no sample to start the mission on")
     ctrl.reset(start[:3])
-    t0 = float(ts_pre[sent - 1])
+    t0 = float(stimes[int(start[4])])
     v.ran(sent * per)
-    # the mission steps: sample times as the wire carries them, the reference as the flight
-    # reads it (the grid of control periods, or an exact sample off the grid)
-    n_max = int(math.ceil((traj.duration + 2 * h) / h)) + 2
-    times = boot_seconds(v.tick + per * np.arange(n_max), dt) - t0
+    # the mission steps: one per sample the companion gets, at the sample's time as the wire
+    # carries it, the reference as the flight reads it (the grid of control periods, or an
+    # exact sample off the grid)
+    got = delivered[sent:]
+    got = got[got >= 0]
+    times = stimes[got] - t0
     done = np.nonzero(times >= traj.duration)[0]
-    n = int(done[0]) + 1 if done.size else n_max
-    times = times[:n]
-    ref = _references(traj, times, h)
-    eta = packed.normals(n * per)
-    log = np.full((n, NLOG), math.nan)
+    rows_max = int(done[0]) + 1 if done.size else times.size
+    ref = _references(traj, times[:rows_max], h)
+    log = np.full((rows_max, NLOG), math.nan)
     sf = mission.safety
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
                        sf.max_speed], dtype=float)
     Pc, Mc = ctrl.params
     yaw_offset = wrap_pi(start[3] - float(traj.sample(0.0).yaw))
-    rows, status = closed_loop(*state, packed.params, packed.state, eta, *wind_out, dt, v.tick,
-                               *timing, times, ctrl._S, Pc, Mc, ctrl._IN, ref, oracle, limits,
-                               origin, GROUND_RULES, False, yaw_offset, log)
-    v.ran((rows if status == STATUS_OK else rows - 1) * per)
+    rows, status, flown = closed_loop(
+        *state, packed.params, packed.state, eta[sent * per:], *wind_out, dt, v.tick, *timing,
+        sent, n, delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, ref, ctrl._S,
+        Pc, Mc, ctrl._IN, oracle, limits, sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset,
+        log)
+    v.ran(flown * per)
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 
 

@@ -81,6 +81,8 @@ class Mission:
     autopilot: str = "px4"  # personality of the bundled vehicle
     attitude_controller: str = "px4"  # the bundled vehicle's own inner loop
     noise: bool = False
+    sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
+    link: object = None  # sim.link_model.LinkModel between the bundled vehicle and the companion
     heading_deg: float = 0.0  # the bundled vehicle's initial heading
     settle_s: float = 0.0  # errors are also reported after this mission time
     out: str = "runs"
@@ -495,6 +497,11 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.attitude_controller = s.string("attitude_controller", "px4",
                                          choices=("px4", "ladrc", "adrc", "pd"))
         m.noise = s.boolean("noise", False)
+        m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
+        if s.has("link"):
+            from sim.link_model import link_from_section
+            link = link_from_section(s.section("link"))
+            m.link = None if link.perfect else link
         m.heading_deg = s.number("heading_deg", 0.0, ge=-360.0, le=360.0)
         s.finish()
     m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()

@@ -32,6 +32,9 @@ def add_arguments(p):
     p.add_argument("--noise", action="store_true",
                    help="report position/velocity/attitude/rates with typical sensor noise")
     p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
+    p.add_argument("--link", default=None, metavar="FILE",
+                   help="YAML file with a link model (latency, jitter, loss per direction, "
+                        "blackouts), as a mission's sim: {link: ...}")
     p.add_argument("--home", default="47.397742,8.545594,488.0",
                    help="home LAT,LON,ALT (deg, deg, m AMSL)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
@@ -121,12 +124,28 @@ def check_ports(args):
                 raise port_in_use(e, args) from None
 
 
+def read_link(path):
+    """A :class:`sim.link_model.LinkModel` from a YAML file holding a ``link:`` section's keys;
+    a bad file ends the command with its file, line and field."""
+    from .link_model import link_from_section
+    from .yamlio import ConfigError, Section, load_yaml
+
+    try:
+        data = load_yaml(path)
+        if not isinstance(data, dict):
+            raise ConfigError(f"{path}: a link file is a mapping (down, up, blackouts)")
+        return link_from_section(Section(data, str(path)))
+    except ConfigError as e:
+        raise SystemExit(f"--link: {e}") from None
+
+
 def make_server(args):
     from .vehicle import SimVehicle
 
     if not math.isfinite(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
+    link = read_link(args.link) if args.link else None
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
@@ -147,7 +166,7 @@ def make_server(args):
                           lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
                           offboard_port=args.offboard_port, gcs_port=args.gcs_port,
                           bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs,
-                          params=params)
+                          params=params, link=link)
     except PortInUse as e:  # taken since check_ports
         raise port_in_use(e, args) from None
 

@@ -30,6 +30,11 @@ import numpy as np
 #: a period whose sample (or setpoint) never arrives
 LOST = -1
 
+#: s of vehicle time from which, in lockstep and on the in-process fast path, the control
+#: samples and setpoints pass through the link model: after the arming handshake (whose
+#: commands a lossy link would make depend on wall-clock retries), before the motors start
+LINK_FROM = 2.0
+
 
 @dataclass
 class Way:
@@ -76,9 +81,10 @@ class LinkModel:
         """Whether vehicle time ``t`` falls in a blackout."""
         return any(s <= t < s + d for s, d in self.blackouts)
 
-    def schedule(self, seed, period):
-        """The link's decisions, period by period, for ``seed`` and a control ``period`` (s)."""
-        return LinkSchedule(self, seed, period)
+    def schedule(self, seed, period, t0=0.0):
+        """The link's decisions, period by period, for ``seed`` and a control ``period`` (s),
+        period 0 at vehicle time ``t0``."""
+        return LinkSchedule(self, seed, period, t0)
 
     def as_dict(self):
         return {"down": vars(self.down).copy(), "up": vars(self.up).copy(),
@@ -181,3 +187,65 @@ class Delivery:
         self._last = max(due)
         self._pending = [(a, s) for a, s in self._pending if s > self._last]
         return self._last
+
+
+class PeriodLink:
+    """The link between a companion that answers each sample with one setpoint and a vehicle
+    whose clock moves in control periods (lockstep, the in-process fast path), period by period.
+
+    Period 0 is at vehicle time ``t0`` (:data:`LINK_FROM`); its sample goes out before the link
+    model applies, and the setpoints made before it have all arrived.  At each period ``k``, in this order:
+
+    * :meth:`sample` files the sample taken at period k and returns the period of the sample the
+      companion gets now (the newest arrived one newer than the last it got), or None;
+    * :meth:`answered` files the setpoint the companion made at period k (only when it got a
+      sample then);
+    * :meth:`applied` returns the period of the setpoint the vehicle applies from now on (the
+      newest arrived one newer than the last it applied), or None to keep the last.
+
+    Both paths call exactly these, so they meet the same link for the same seed."""
+
+    def __init__(self, model, seed, period, t0=0.0):
+        self.schedule = model.schedule(seed, period, t0)
+        self._samples = Delivery()
+        self._setpoints = Delivery()
+        self._samples._last = 0  # the arming sample was delivered on a perfect link
+        self.k = 0
+        self.samples_lost = 0
+        self.setpoints_lost = 0
+
+    def sample(self, k):
+        self.k = k
+        if k == 0:
+            return 0
+        delay = self.schedule.down(k)
+        if delay == LOST:
+            self.samples_lost += 1
+        self._samples.arrive(k, delay)
+        return self._samples.take(k)
+
+    def answered(self, k):
+        delay = self.schedule.up(k)
+        if delay == LOST:
+            self.setpoints_lost += 1
+        self._setpoints.arrive(k, delay)
+
+    def applied(self, k):
+        return self._setpoints.take(k)
+
+    def arrays(self, n, answers=None):
+        """(delivered, applied): per period 0..n-1, the sample period the companion gets and
+        the setpoint period the vehicle applies (-1: none), for a companion that answers every
+        sample it gets (or, ``answers(k, sample_period)`` False, stops answering)."""
+        delivered = np.full(n, -1, dtype=np.int64)
+        applied = np.full(n, -1, dtype=np.int64)
+        for k in range(n):
+            s = self.sample(k)
+            if s is not None:
+                delivered[k] = s
+                if answers is None or answers(k, s):
+                    self.answered(k)
+            a = self.applied(k)
+            if a is not None:
+                applied[k] = a
+        return delivered, applied

@@ -33,10 +33,11 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from . import personality as PP
+from .link_model import LINK_FROM, PeriodLink
 from .autopilot import Autopilot
 from .mavlink import ftp, mission
 from .mavlink.commands import Commands
-from .mavlink.link import (GCS_RATES, LOOPBACK, ONBOARD_RATES, Link, Stats, bind_udp,
+from .mavlink.link import (GCS_RATES, LOOPBACK, LPN, ONBOARD_RATES, Link, Stats, bind_udp,
                            default_ports)
 from .mavlink.offboard import Offboard
 from .mavlink.parameters import Parameters
@@ -60,8 +61,16 @@ class SitlServer:
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
                  lockstep_timeout=10.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
                  host=LOOPBACK, offboard_port=None, gcs_port=None, bind_offboard=None,
-                 bind_gcs=None, params=None):
+                 bind_gcs=None, params=None, link=None, link_seed=None):
         self.vehicle = vehicle
+        # the link model (sim.link_model.LinkModel) in lockstep: see _on_attitude_target
+        self.link_model = link if (link is not None and not link.perfect) else None
+        self.link_seed = vehicle.seed if link_seed is None else link_seed
+        self.plink = None
+        self._lpn = {}  # period -> the LOCAL_POSITION_NED taken then, not yet delivered
+        self._made = {}  # period -> the setpoint the companion made then, not yet applied
+        self._applying = False
+        self._fresh_link = False
         self.ap = PP.personality(autopilot)
         self.instance = int(instance)
         self.sysid = self.instance + 1
@@ -102,7 +111,7 @@ class SitlServer:
             "COMMAND_LONG": commands.on_command,
             "COMMAND_INT": commands.on_command,
             "SET_MODE": commands.on_set_mode,
-            "SET_ATTITUDE_TARGET": self.offboard.on_attitude_target,
+            "SET_ATTITUDE_TARGET": self._on_attitude_target,
             "SET_POSITION_TARGET_LOCAL_NED": self.offboard.on_position_target,
             "TIMESYNC": Timesync(vehicle).on_timesync,
             "PARAM_REQUEST_LIST": self.parameters.on_request_list,
@@ -205,8 +214,77 @@ class SitlServer:
     def _setpoint_arrived(self):
         """In lockstep every well-formed setpoint advances the clock one period, whether or not
         the current mode acts on it: the companion's stream is the clock."""
-        if self.lockstep:
+        if self.lockstep and not self._applying:
             self._pending_steps += 1
+
+    # --- the link model in lockstep ---------------------------------------------------------------
+    #
+    # From the arming on, the clock moves in control periods counted from it, and the samples
+    # (LOCAL_POSITION_NED on the offboard link) and attitude setpoints pass through
+    # sim.link_model.PeriodLink exactly as the in-process fast path passes them: at each period
+    # the sample taken then is filed and the newest arrived one goes out (or none); the
+    # companion's answer is filed under the period it answered in, and the newest arrived
+    # setpoint is applied before the clock moves on.  A period in which no sample reaches the
+    # companion ends at once (no answer will come).  Other messages pass untouched.
+
+    def _link_active(self):
+        """Whether samples and setpoints pass through the link model now: in lockstep, armed,
+        from :data:`sim.link_model.LINK_FROM` s of vehicle time on."""
+        if self.link_model is None or not self.lockstep:
+            return False
+        if not self.vehicle.armed:
+            self.plink = None
+            return False
+        if self.plink is None and self.vehicle.time >= LINK_FROM - 1e-9:
+            self.plink = PeriodLink(self.link_model, self.link_seed, self.lockstep_dt,
+                                    self.vehicle.time)
+            self._lpn.clear()
+            self._made.clear()
+            self._fresh_link = True
+        return self.plink is not None
+
+    def _on_attitude_target(self, link, msg):
+        if self.plink is None or not self._link_active():
+            return self.offboard.on_attitude_target(link, msg)
+        k = self.plink.k
+        self.plink.answered(k)
+        self._made[k] = (link, msg)
+        self._end_period()
+
+    def _end_period(self):
+        """Apply the newest setpoint that has arrived, and let the clock move one period."""
+        k = self.plink.k
+        a = self.plink.applied(k)
+        if a is not None:
+            made = self._made.pop(a)
+            for old in [p for p in self._made if p < a]:
+                del self._made[old]
+            self._applying = True
+            try:
+                self.offboard.on_attitude_target(*made)
+            finally:
+                self._applying = False
+        self._pending_steps += 1
+
+    def _build_offboard(self, mid):
+        """The offboard link's messages; its sample as the link model delivers it."""
+        msg = self.streams.build(mid)
+        if mid != LPN or self.plink is None or msg is None:
+            return msg
+        if self._fresh_link:  # the first period: its sample goes out on a perfect link
+            self._fresh_link = False
+            self.plink.sample(0)
+            return msg
+        k = self.plink.k + 1
+        self._lpn[k] = msg
+        s = self.plink.sample(k)
+        if s is None:
+            self._end_period()  # the companion gets nothing: nothing will answer
+            return None
+        out = self._lpn.pop(s)
+        for old in [p for p in self._lpn if p < s]:
+            del self._lpn[old]
+        return out
 
     def _lockstep_stalled(self):
         """In lockstep, setpoints stopped for ``lockstep_timeout`` wall seconds while flying."""
@@ -242,6 +320,11 @@ class SitlServer:
             self._heartbeat_now()
             self._last_hb_t = t
             self._last_hb_wall = time.monotonic()
+        if self._link_active():
+            self.links[0].send_due(t, self._build_offboard)
+            for link in self.links[1:]:
+                link.send_due(t, self.streams.build)
+            return
         for link in self.links:
             link.send_due(t, self.streams.build)
 

@@ -228,6 +228,7 @@ class SimVehicle:
         self._x = phys.initial_state(pos, yaw, vp.hover_omega if airborne else 0.0)
         self._xm = self._x.copy()
         self._xr = self._x
+        self._measured_tick = None
         self._fs = np.zeros(A.NFS)
         self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
         self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
@@ -487,9 +488,13 @@ class SimVehicle:
                     self._omega, self._wk, self._pv, self._v_wind, self._f_ext, self._tau_ext,
                     self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt)
             self._tick += n
+        if per_step:
+            self._measure()  # what is reported after the step is of its end, not a tick before
 
     def _measure(self):
-        if self.sensors is not None:
+        """The sensor model's reading of the state of this tick (once per tick)."""
+        if self.sensors is not None and self._measured_tick != self._tick:
+            self._measured_tick = self._tick
             self._xm = self._estimate.measure(self.time, self._x)
             self._xr = self._xm if self._report is None else self._report.measure(self.time,
                                                                                   self._xm)
