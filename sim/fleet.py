@@ -134,6 +134,22 @@ class FleetServer:
     def time(self):
         return self.servers[0].time
 
+    def start(self):
+        """Run the loop in a thread (tests); :meth:`stop` ends it."""
+        import threading
+
+        self._running = True
+        self._thread = threading.Thread(target=self._loop, name="mavadrc-sitl-fleet",
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self):
+        self._running = False
+        if getattr(self, "_thread", None) is not None:
+            self._thread.join(timeout=5.0)
+        self.close()
+
     def stop_soon(self):
         self._running = False
 
