@@ -149,7 +149,7 @@ def _serving_load(serve, clock, seconds, settle=0.5):
     return (cpu1 - cpu0) / wall, (sim1 - sim0) / wall
 
 
-def fleet_figures(seconds=3.0, counts=(1, 10, 30, 100), more=(150, 200, 300, 400), tick=0.004):
+def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300), tick=0.004):
     """`mavadrc sitl --count N`: the CPU load of one process serving N vehicles in real time
     with the serving loop at 1/tick Hz (250 Hz; physics at 1 kHz inside) and full telemetry
     (LOCAL_POSITION_NED and ATTITUDE at 100 Hz on each offboard link, the default rest on both
