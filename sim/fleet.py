@@ -27,9 +27,10 @@ import time
 
 import numpy as np
 
+from mavadrc.control._jit import jit
+
 from .firmware import position as PL
 from .vehicle import advance
-from mavadrc.control._jit import jit
 
 #: the kernel arrays of a SimVehicle that become rows of the fleet's arrays
 ROW_ARRAYS = ("_x", "_fs", "_S", "_W", "_sp", "_omega", "_wk", "_v_wind", "_f_ext", "_tau_ext")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl_helpers import Client, free_udp_port, px4_mode, wait_until
+from sitl_helpers import Client, free_udp_port, px4_mode
 from sim import cli
 from sim.fleet import FleetServer, VehicleRows
 from sim.server import SitlServer
