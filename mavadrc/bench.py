@@ -133,6 +133,80 @@ def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
     return fig
 
 
+def _serving_load(serve, clock, seconds, settle=0.5):
+    """(CPU fraction of one core, simulated over wall seconds) of a serving loop that runs in
+    a thread of this process (``serve.start()`` / ``serve.stop()``; ``clock()`` its vehicle
+    time), measured over ``seconds`` after ``settle`` seconds."""
+    serve.start()
+    try:
+        time.sleep(settle)
+        cpu0, wall0, sim0 = time.process_time(), time.monotonic(), clock()
+        time.sleep(seconds)
+        cpu1, wall1, sim1 = time.process_time(), time.monotonic(), clock()
+    finally:
+        serve.stop()
+    wall = wall1 - wall0
+    return (cpu1 - cpu0) / wall, (sim1 - sim0) / wall
+
+
+def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300), tick=0.004):
+    """`mavadrc sitl --count N`: the CPU load of one process serving N vehicles in real time
+    with the serving loop at 1/tick Hz (250 Hz; physics at 1 kHz inside) and full telemetry
+    (LOCAL_POSITION_NED and ATTITUDE at 100 Hz on each offboard link, the default rest on both
+    links), for each N of ``counts`` and then of ``more`` while real time holds; and a
+    single-vehicle server measured the same way in the same run, as the peer.
+
+    Real time holds when the vehicles' clock keeps within 1 % of the wall clock and the loop
+    needs less than one core.  Every link sends to one bound loopback socket nobody reads (the
+    kernel drops what overflows it), so what is measured is the server's own work.
+    """
+    import socket
+
+    from sim.fleet import FleetServer
+    from sim.mavlink.link import LPN
+    from sim.server import SitlServer
+    from sim.vehicle import SimVehicle
+
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    port = sink.getsockname()[1]
+
+    def servers(n):
+        out = []
+        for k in range(n):
+            s = SitlServer(SimVehicle("crazyflie", seed=k), "px4", k, tick=tick,
+                           bind_offboard=0, bind_gcs=0, offboard_port=port, gcs_port=port)
+            s.links[0].set_interval(LPN, 10_000, due=0)  # ATTITUDE is at 100 Hz already
+            out.append(s)
+        return out
+
+    fig = {}
+    try:
+        single = servers(1)[0]
+        cpu1, _ = _serving_load(single, lambda: single.time, seconds)
+        fig["sitl_single_250hz_cpu_pct_of_core"] = cpu1 * 100.0
+        best = None
+        for n in list(counts) + list(more):
+            if n in more and best != prev:
+                break  # the previous count already lost real time
+            fleet = FleetServer(servers(n), tick=tick)
+            cpu, speed = _serving_load(fleet, lambda: fleet.time, seconds)
+            fig[f"sitl_fleet_{n}_cpu_pct_of_core"] = cpu * 100.0
+            fig[f"sitl_fleet_{n}_x_realtime"] = speed
+            prev = n
+            if speed >= 0.99 and cpu < 1.0:
+                best = n
+        if best is not None:
+            per = fig[f"sitl_fleet_{best}_cpu_pct_of_core"] / best
+            fig["sitl_fleet_realtime_max_n"] = float(best)
+            fig["sitl_fleet_per_vehicle_cpu_pct_of_core"] = per
+            fig["ratio_single_over_fleet_per_vehicle"] = \
+                fig["sitl_single_250hz_cpu_pct_of_core"] / per
+    finally:
+        sink.close()
+    return fig
+
+
 def _lockstep_hover(mavutil, port, seconds):
     """A 100 Hz LADRC position loop over pymavlink against a lockstep vehicle; x real time."""
     M = mavutil.mavlink
@@ -266,6 +340,7 @@ def all_figures(sitl=True, compare=True, compare_seeds=10):
     fig.update(physics_figures())
     if sitl:
         fig.update(sitl_figures())
+        fig.update(fleet_figures())
         fig.update(fly_figures())
     if compare:
         fig.update(compare_figures(compare_seeds, mavlink=sitl))

@@ -18,6 +18,10 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=0, help="seed of wind and sensor noise")
     p.add_argument("--instance", type=int, default=0,
                    help="instance N: ports + N, system id N + 1 (default 0)")
+    p.add_argument("--count", type=int, default=1, metavar="N",
+                   help="serve N vehicles from one process, instances INSTANCE..INSTANCE+N-1 "
+                        "with their own ports and system ids, vehicle k with seed SEED+k "
+                        "(real time only; default 1)")
     p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                    help="autopilot personality on the wire (default px4)")
     p.add_argument("--attitude-controller", choices=("px4", "ladrc", "adrc", "pd"), default="px4",
@@ -43,13 +47,16 @@ def add_arguments(p):
                    help="initial value of one of the autopilot's parameters, e.g. "
                         "COM_SPOOLUP_TIME=0 (repeatable)")
     p.add_argument("--offboard-port", type=int, default=None,
-                   help="UDP port the offboard link sends to (default 14540 + instance)")
+                   help="UDP port the offboard link sends to (default 14540 + instance; with "
+                        "--count, vehicle k sends to this + k)")
     p.add_argument("--gcs-port", type=int, default=None,
                    help="UDP port the ground-station link sends to (default 14550)")
     p.add_argument("--bind-offboard", type=int, default=None,
-                   help="local UDP port of the offboard link (default 14580 + instance; 0: any)")
+                   help="local UDP port of the offboard link (default 14580 + instance; 0: any; "
+                        "with --count, vehicle k binds this + k)")
     p.add_argument("--bind-gcs", type=int, default=None,
-                   help="local UDP port of the ground-station link (default 18570 + instance; 0: any)")
+                   help="local UDP port of the ground-station link (default 18570 + instance; "
+                        "0: any; with --count, vehicle k binds this + k)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after this many wall-clock seconds (default: run until Ctrl-C)")
     p.add_argument("-v", "--verbose", action="store_true", help="log every STATUSTEXT")
@@ -112,16 +119,26 @@ def port_in_use(e, args):
     return SystemExit(f"mavadrc sitl: {e}; choose another with {how}")
 
 
+def fleet_ports(args, k):
+    """The port options of vehicle k of a --count fleet: explicit offboard and local ports move
+    by k as the defaults do (a local port of 0 stays 0: any free one); every vehicle's
+    ground-station link sends to the same port (14550 by default), as PX4 SITL's instances do."""
+    def plus(port):
+        return port if not port else port + k
+    return {"offboard_port": plus(args.offboard_port), "gcs_port": args.gcs_port,
+            "bind_offboard": plus(args.bind_offboard), "bind_gcs": plus(args.bind_gcs)}
+
+
 def check_ports(args):
     """Fail at once, before the warm-up compiles anything, if a link's local port is taken."""
-    ports = default_ports(args.instance, args.offboard_port, args.gcs_port, args.bind_offboard,
-                          args.bind_gcs)
-    for name, (_, local) in ports.items():
-        if local:
-            try:
-                bind_udp(LOOPBACK, local, name).close()
-            except PortInUse as e:
-                raise port_in_use(e, args) from None
+    for k in range(getattr(args, "count", 1)):
+        ports = default_ports(args.instance + k, **fleet_ports(args, k))
+        for name, (_, local) in ports.items():
+            if local:
+                try:
+                    bind_udp(LOOPBACK, local, name).close()
+                except PortInUse as e:
+                    raise port_in_use(e, args) from None
 
 
 def read_link(path):
@@ -140,46 +157,79 @@ def read_link(path):
 
 
 def make_server(args):
+    """The SitlServer of the options (with --count, the first of :func:`make_servers`)."""
+    return make_servers(args)[0]
+
+
+def make_servers(args):
+    """One SitlServer per vehicle of --count (instance + k, seed + k, ports + k), not started."""
     from .vehicle import SimVehicle
 
+    count = getattr(args, "count", 1)
+    if count < 1:
+        raise SystemExit(f"--count must be at least 1 (got {count})")
+    if count > 1 and args.lockstep:
+        raise SystemExit("mavadrc sitl: --count serves its vehicles in real time only; for "
+                         "lockstep start one process per vehicle (--instance N)")
     if not math.isfinite(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
     link = read_link(args.link) if args.link else None
-    check_ports(args)
-    warm_up(args.vehicle, args.wind, args.attitude_controller)
-    sensors = None
-    if args.noise or args.latency > 0.0:
-        sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}
-    vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed, sensors=sensors,
-                         attitude_controller=args.attitude_controller,
-                         yaw=math.radians(args.heading))
     try:
         home = tuple(float(v) for v in args.home.split(","))
         if len(home) != 3:
             raise ValueError
     except ValueError:
         raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
+    check_ports(args)
+    warm_up(args.vehicle, args.wind, args.attitude_controller)
+    sensors = None
+    if args.noise or args.latency > 0.0:
+        sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}
     key = read_signing_key(args.signing_key) if args.signing_key else None
+    servers = []
     try:
-        return SitlServer(vehicle, args.autopilot, args.instance, lockstep=args.lockstep,
-                          lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
-                          offboard_port=args.offboard_port, gcs_port=args.gcs_port,
-                          bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs,
-                          params=params, link=link)
+        for k in range(count):
+            vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed + k,
+                                 sensors=sensors, attitude_controller=args.attitude_controller,
+                                 yaw=math.radians(args.heading))
+            servers.append(SitlServer(vehicle, args.autopilot, args.instance + k,
+                                      lockstep=args.lockstep,
+                                      lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,
+                                      home=home, params=params, link=link,
+                                      **fleet_ports(args, k)))
     except PortInUse as e:  # taken since check_ports
+        for s in servers:
+            s._close()
         raise port_in_use(e, args) from None
+    return servers
+
+
+def _span(values):
+    values = list(values)
+    return str(values[0]) if len(values) == 1 or values[0] == values[-1] else \
+        f"{values[0]}..{values[-1]}"
 
 
 def run(args):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s: %(message)s")
-    server = make_server(args)
-    ports = server.local_ports
-    print(f"mavadrc sitl: {args.vehicle} as {args.autopilot}, system {server.sysid}; "
-          f"offboard link -> 127.0.0.1:{server.links[0].peers[0][1]} (local {ports['offboard']}), "
-          f"ground station -> 127.0.0.1:{server.links[1].peers[0][1]} (local {ports['gcs']})"
-          f"{', lockstep' if server.lockstep else ''}", flush=True)
+    servers = make_servers(args)
+    if len(servers) == 1:
+        server = servers[0]
+    else:
+        from .fleet import FleetServer
+
+        server = FleetServer(servers)
+    first = servers[0]
+    ports = [s.local_ports for s in servers]
+    print(f"mavadrc sitl: {_count_of(servers)}{args.vehicle} as {args.autopilot}, system "
+          f"{_span(s.sysid for s in servers)}; offboard link -> 127.0.0.1:"
+          f"{_span(s.links[0].peers[0][1] for s in servers)} (local "
+          f"{_span(p['offboard'] for p in ports)}), ground station -> 127.0.0.1:"
+          f"{_span(s.links[1].peers[0][1] for s in servers)} (local "
+          f"{_span(p['gcs'] for p in ports)}){', lockstep' if first.lockstep else ''}",
+          flush=True)
     if args.duration is not None:
         timer = threading.Timer(args.duration, server.stop_soon)
         timer.daemon = True
@@ -189,11 +239,17 @@ def run(args):
         server.run()
     except KeyboardInterrupt:
         pass
-    s = server.stats
-    print(f"mavadrc sitl: stopped at t = {server.time:.2f} s; {s.messages} messages, "
-          f"{s.dropped()} datagrams/frames dropped, {s.other_target} for other systems, "
-          f"{s.setpoints_rejected} setpoints rejected", flush=True)
+    stats = [s.stats for s in servers]
+    print(f"mavadrc sitl: stopped at t = {server.time:.2f} s; "
+          f"{sum(s.messages for s in stats)} messages, "
+          f"{sum(s.dropped() for s in stats)} datagrams/frames dropped, "
+          f"{sum(s.other_target for s in stats)} for other systems, "
+          f"{sum(s.setpoints_rejected for s in stats)} setpoints rejected", flush=True)
     return 0
+
+
+def _count_of(servers):
+    return f"{len(servers)} x " if len(servers) > 1 else ""
 
 
 def main(argv=None):
