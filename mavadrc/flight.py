@@ -108,14 +108,21 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
     # mission replace those one by one, so PX4-style gains can be given in full or in part
     if kind == "adrc":
         # bandwidth shorthand: NLSEF fhan(e1, c e2, r, h1) is linear near zero with kp = 1/h1^2,
-        # kd = 2c/h1, so h1 = 1/wc; the NLESO gains are those of a triple pole at -wo in fal's
-        # linear zone (|e| < delta)
+        # kd = 2c/h1, so h1 = 1/wc.  The NLESO corrects with beta01 e, beta02 fal(e, 1/2, delta)
+        # and beta03 fal(e, 1/4, delta); inside fal's linear zone (|e| < delta) fal(e, a, delta)
+        # = e delta^(a - 1), so the gains of a triple pole at -wo there are (3 wo,
+        # 3 wo^2 delta^(1/2), wo^3 delta^(3/4))
         wc = gains.pop("wc", None)
         if wc is not None:
             gains.setdefault("h1", tuple(1.0 / w for w in wc))
         wo = gains.pop("wo", None)
         if wo is not None:
-            gains.setdefault("beta", tuple((3.0 * w, 3.0 * w * w, w ** 3) for w in wo))
+            delta = gains.get("delta")
+            if delta is None:  # the NLESO's default zone: one sample period
+                delta = 1.0 / (rate_hz or spec.rate_hz)
+            delta = np.broadcast_to(np.asarray(delta, dtype=float), 3)
+            gains.setdefault("beta", tuple((3.0 * w, 3.0 * w * w * d ** 0.5, w ** 3 * d ** 0.75)
+                                           for w, d in zip(wo, delta)))
     accel_max = gains.pop("accel_max", None)
     if accel_max is not None:
         gains["u_min"] = tuple(-a for a in accel_max)

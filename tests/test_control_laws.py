@@ -467,3 +467,38 @@ def test_nlsef_with_c_half_and_h1_10h_does_not_chatter():
 def test_nlsef_with_c_1_and_h1_5h_limit_cycles():
     _, us = closed_loop(channel(HanADRC(h=H, b0=1.0, r0=20.0, r=100.0, c=1.0, h1=5 * H)))
     assert np.ptp(us[-1000:]) > 0.5 * np.abs(us).max()
+
+
+# --- the classical ADRC's bandwidth shorthand -----------------------------------------------------
+
+@pytest.mark.parametrize("rate_hz", [100.0, 250.0])
+@pytest.mark.parametrize("wo, delta", [(23.0, 0.0301), (12.0, 0.05)])
+def test_the_adrc_wo_shorthand_puts_the_nlesos_linearised_poles_at_minus_wo(rate_hz, wo, delta):
+    """``wo`` in a mission's ADRC gains: the NLESO recursion, linearised inside fal's zone
+    (|e| < delta, where fal(e, a, delta) = e delta^(a-1)), has its three poles at -wo (the
+    forward-Euler image 1 - wo h, identified from the recursion itself by finite differences).
+    Without fal's scaling the same wo put them at |z| = 1.154 at 100 Hz (the thesis gains:
+    unstable)."""
+    from mavadrc.flight import make_controller
+    from mavadrc.mission import ControllerSpec
+
+    spec = ControllerSpec(kind="adrc", rate_hz=rate_hz,
+                          gains={"wc": (4.0,) * 3, "wo": (wo,) * 3, "delta": (delta,) * 3})
+    ctrl = make_controller(spec, hover_thrust=0.5)
+    P, _ = ctrl.params
+    h = 1.0 / rate_hz
+    J = np.empty((3, 3))
+    eps = 1e-4 * delta  # well inside the linear zone
+    for j in range(3):
+        cols = []
+        for sgn in (1.0, -1.0):
+            s = np.zeros(K.NS)
+            s[K.S_Z1 + j] = sgn * eps
+            K.nleso_step(s, P[0], 0.0, h)
+            cols.append(s[[K.S_Z1, K.S_Z2, K.S_Z3]].copy())
+        J[:, j] = (cols[0] - cols[1]) / (2.0 * eps)
+    # characteristic polynomial of J against (z - (1 - wo h))^3: a triple root is ill-conditioned
+    # as eigenvalues, well-conditioned as coefficients
+    want = np.poly(np.full(3, 1.0 - wo * h))
+    assert np.allclose(np.poly(J), want, rtol=0, atol=1e-9)
+    assert max(abs(np.linalg.eigvals(J))) < 1.0
