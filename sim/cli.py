@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from .link_flags import add_link_arguments, link_args, link_from_args  # noqa: F401
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
 from .server import SitlServer
 
@@ -49,6 +50,7 @@ def add_arguments(p):
                    help="local UDP port of the ground-station link (default 18570 + instance; 0: any)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after this many wall-clock seconds (default: run until Ctrl-C)")
+    add_link_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every STATUSTEXT")
     return p
 
@@ -127,6 +129,7 @@ def make_server(args):
     if not math.isfinite(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
+    link, link_on, bandwidth = link_from_args(args)
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
@@ -147,7 +150,8 @@ def make_server(args):
                           lockstep_dt=1.0 / args.lockstep_rate, signing_key=key, home=home,
                           offboard_port=args.offboard_port, gcs_port=args.gcs_port,
                           bind_offboard=args.bind_offboard, bind_gcs=args.bind_gcs,
-                          params=params)
+                          params=params, link=link, link_on=link_on, link_bandwidth=bandwidth,
+                          link_seed=args.seed)
     except PortInUse as e:  # taken since check_ports
         raise port_in_use(e, args) from None
 
@@ -161,6 +165,8 @@ def run(args):
           f"offboard link -> 127.0.0.1:{server.links[0].peers[0][1]} (local {ports['offboard']}), "
           f"ground station -> 127.0.0.1:{server.links[1].peers[0][1]} (local {ports['gcs']})"
           f"{', lockstep' if server.lockstep else ''}", flush=True)
+    if server.link_model is not None or any(link.line for link in server.links):
+        print(f"mavadrc sitl: link {describe_link(server)}", flush=True)
     if args.duration is not None:
         timer = threading.Timer(args.duration, server.stop_soon)
         timer.daemon = True
@@ -174,7 +180,29 @@ def run(args):
     print(f"mavadrc sitl: stopped at t = {server.time:.2f} s; {s.messages} messages, "
           f"{s.dropped()} datagrams/frames dropped, {s.other_target} for other systems, "
           f"{s.setpoints_rejected} setpoints rejected", flush=True)
+    summary = s.link_summary()
+    if summary:
+        print(f"mavadrc sitl: link {summary}", flush=True)
+        logging.getLogger("mavadrc.sitl").info("link: %s", summary)
     return 0
+
+
+def describe_link(server):
+    """The link model and bandwidths in force, in one line."""
+    m = server.link_model
+    parts = []
+    if m is not None:
+        for way in ("down", "up"):
+            w = getattr(m, way)
+            if not w.perfect:
+                parts.append(f"{way} {1e3 * w.latency_s:g}+{1e3 * w.jitter_s:g} ms, "
+                             f"loss {w.loss:g}")
+        parts += [f"blackout {s:g}+{d:g} s" for s, d in m.blackouts]
+        if server.lockstep:
+            parts.append("(lockstep: applied in vehicle time by the lockstep path, not on the "
+                         "wall clock)")
+    parts += [f"{link.name} {link.line.rate:g} B/s" for link in server.links if link.line]
+    return "; ".join(parts)
 
 
 def main(argv=None):
