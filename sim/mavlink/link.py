@@ -102,7 +102,8 @@ class Stats:
         """One line on what the link model and the bandwidth did (None: nothing)."""
         parts = []
         for way in ("down", "up"):
-            lost, dark, late = (getattr(self, f"link_{k}_{way}") for k in ("lost", "dark", "delayed"))
+            lost, dark, late = (getattr(self, f"link_{k}_{way}")
+                                for k in ("lost", "dark", "delayed"))
             if lost or dark or late:
                 parts.append(f"{way}: {lost} lost, {dark} in blackouts, {late} delayed")
         if self.bandwidth_dropped:
