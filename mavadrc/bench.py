@@ -185,7 +185,7 @@ def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300)
         single = servers(1)[0]
         cpu1, _ = _serving_load(single, lambda: single.time, seconds)
         fig["sitl_single_250hz_cpu_pct_of_core"] = cpu1 * 100.0
-        best = None
+        best = prev = None
         for n in list(counts) + list(more):
             if n in more and best != prev:
                 break  # the previous count already lost real time

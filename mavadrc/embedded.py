@@ -69,10 +69,6 @@ class EmbeddedVehicle:
             cmd += ["--noise"]
         if mission.sensor_latency_s:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
-        if mission.link is not None:
-            path = workdir / "link.yaml"
-            path.write_text(yaml.safe_dump(mission.link.as_dict()))
-            cmd += ["--link", str(path)]
         if mission.heading_deg:
             cmd += ["--heading", str(mission.heading_deg)]
         if signing_key is not None:
@@ -81,6 +77,7 @@ class EmbeddedVehicle:
             cmd += ["--signing-key", str(key_path)]
         for name, value in (params or {}).items():
             cmd += ["--param", f"{name}={value}"]
+        cmd += link_options(mission)
         if start == "auto":
             start = "fork" if can_fork() else "spawn"
         self.log = subprocess.DEVNULL
@@ -121,6 +118,18 @@ class EmbeddedVehicle:
                 tail = ": " + " / ".join(lines[-3:]) if lines else ""
             raise FlightError(f"the bundled vehicle exited with code {self.proc.returncode}"
                               f"{tail}")
+
+
+def link_options(mission):
+    """The vehicle's options for the mission's ``sim: {link:}`` (``mission.link``, a
+    :class:`sim.link_model.LinkModel` or None): applied on the wall clock by a real-time
+    vehicle, in vehicle time by a lockstep one."""
+    link = getattr(mission, "link", None)
+    if link is None:
+        return []
+    from sim.link_flags import link_args
+
+    return link_args(link)
 
 
 def can_fork():

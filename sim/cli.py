@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from .link_flags import add_link_arguments, link_args, link_from_args  # noqa: F401
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
 from .server import SitlServer
 
@@ -59,6 +60,7 @@ def add_arguments(p):
                         "0: any; with --count, vehicle k binds this + k)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after this many wall-clock seconds (default: run until Ctrl-C)")
+    add_link_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every STATUSTEXT")
     return p
 
@@ -174,7 +176,12 @@ def make_servers(args):
     if not math.isfinite(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
-    link = read_link(args.link) if args.link else None
+    link, link_on, bandwidth = link_from_args(args)
+    if args.link:
+        if link is not None:
+            raise SystemExit("--link FILE and --link-down/--link-up/--link-blackout: give the "
+                             "link model one way")
+        link = read_link(args.link)
     try:
         home = tuple(float(v) for v in args.home.split(","))
         if len(home) != 3:
@@ -196,7 +203,8 @@ def make_servers(args):
             servers.append(SitlServer(vehicle, args.autopilot, args.instance + k,
                                       lockstep=args.lockstep,
                                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,
-                                      home=home, params=params, link=link,
+                                      home=home, params=params, link=link, link_on=link_on,
+                                      link_bandwidth=bandwidth, link_seed=args.seed + k,
                                       **fleet_ports(args, k)))
     except PortInUse as e:  # taken since check_ports
         for s in servers:
@@ -230,6 +238,8 @@ def run(args):
           f"{_span(s.links[1].peers[0][1] for s in servers)} (local "
           f"{_span(p['gcs'] for p in ports)}){', lockstep' if first.lockstep else ''}",
           flush=True)
+    if first.link_model is not None or any(link.line for link in first.links):
+        print(f"mavadrc sitl: link {describe_link(first)}", flush=True)
     if args.duration is not None:
         timer = threading.Timer(args.duration, server.stop_soon)
         timer.daemon = True
@@ -245,11 +255,33 @@ def run(args):
           f"{sum(s.dropped() for s in stats)} datagrams/frames dropped, "
           f"{sum(s.other_target for s in stats)} for other systems, "
           f"{sum(s.setpoints_rejected for s in stats)} setpoints rejected", flush=True)
+    summary = first.stats.link_summary()
+    if summary:
+        print(f"mavadrc sitl: link {summary}", flush=True)
+        logging.getLogger("mavadrc.sitl").info("link: %s", summary)
     return 0
 
 
 def _count_of(servers):
     return f"{len(servers)} x " if len(servers) > 1 else ""
+
+
+def describe_link(server):
+    """The link model and bandwidths in force, in one line."""
+    m = server.link_model
+    parts = []
+    if m is not None:
+        for way in ("down", "up"):
+            w = getattr(m, way)
+            if not w.perfect:
+                parts.append(f"{way} {1e3 * w.latency_s:g}+{1e3 * w.jitter_s:g} ms, "
+                             f"loss {w.loss:g}")
+        parts += [f"blackout {s:g}+{d:g} s" for s, d in m.blackouts]
+        if server.lockstep:
+            parts.append("(lockstep: applied in vehicle time by the lockstep path, not on the "
+                         "wall clock)")
+    parts += [f"{link.name} {link.line.rate:g} B/s" for link in server.links if link.line]
+    return "; ".join(parts)
 
 
 def main(argv=None):

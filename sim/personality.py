@@ -359,6 +359,13 @@ class Personality:
     disarm_denied_text: str = None
     landing_text: str = None
     takeoff_text: str = None
+    #: how a link short of bandwidth slows its streams: "rate_mult" (PX4: every stream's
+    #: interval stretched by one multiplier sized to the link's data rate) or "payload_space"
+    #: (ArduPilot: a message that does not fit in the link's transmit buffer waits for room)
+    bandwidth_throttle: str = "rate_mult"
+    #: bytes the port of a bandwidth-limited link holds before a message has to wait (or is
+    #: dropped): the transmit buffer of the autopilot's telemetry port
+    tx_buffer_bytes: int = 3000
 
     def mode(self, name):
         """The mode called ``name`` or one of its aliases."""
@@ -422,12 +429,47 @@ class Personality:
     def interval_refused_text(self, msgid):
         return None
 
+    def stream_interval(self, msgid, interval_us):
+        """A SET_MESSAGE_INTERVAL of ``interval_us`` (> 0) for a message this autopilot sends,
+        as its estimator and scheduler can serve it: (MAV_RESULT, the interval the stream then
+        runs at in us (None: unchanged), the interval GET_MESSAGE_INTERVAL reports, optional
+        STATUSTEXT)."""
+        return mavlink.MAV_RESULT_ACCEPTED, interval_us, interval_us, None
+
     def offboard_loss_action(self, params):
         """(mode name, or 'DISARM' / 'TERMINATE', the failsafe action's name)."""
         return None
 
 
+#: PX4's publication rates of the topics behind its streams (Hz): vehicle_local_position,
+#: vehicle_global_position and vehicle_odometry come from an EKF2 update, one each
+#: EKF2_PREDICT_US (default 10000 us: 100 Hz, src/modules/ekf2/module.yaml); vehicle_attitude
+#: from the output predictor on every IMU sample, IMU_INTEG_RATE (default 200 Hz,
+#: vehicle_imu/imu_parameters.c).  A stream sends only a sample it has not sent (the
+#: streams' ``_sub.update()``), so it runs no faster than its topic, whatever was asked.
+PX4_ESTIMATOR_HZ = {
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 100.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 100.0,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: 100.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 200.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 200.0,
+}
+
+#: ArduCopter's main loop, SCHED_LOOP_RATE (default 400 Hz, AP_Scheduler.cpp); GCS_MAVLINK
+#: streams no message faster than 0.8 of it (cap_message_interval, GCS_Common.cpp)
+ARDUCOPTER_LOOP_HZ = 400.0
+
+
 class PX4(Personality):
+    def stream_interval(self, msgid, interval_us):
+        """MavlinkReceiver::set_message_interval configures the stream at the rate asked and
+        answers ACCEPTED; the stream then sends each new sample of its topic at most once, so
+        faster than the estimator publishes it comes out at the estimator's rate, silently.
+        GET_MESSAGE_INTERVAL reports the interval asked (stream->get_interval())."""
+        hz = PX4_ESTIMATOR_HZ.get(msgid)
+        floor = 0 if hz is None else int(round(1e6 / hz))
+        return mavlink.MAV_RESULT_ACCEPTED, max(interval_us, floor), interval_us, None
+
     def command_mode(self, p2, p3):
         """param2 the main mode, param3 the sub mode (AUTO's only) (commander:
         handle_command DO_SET_MODE)."""
@@ -565,6 +607,16 @@ class ArduCopter(Personality):
         # GCS_MAVLINK::set_message_interval, SITL builds
         return f"No ap_message for mavlink id ({msgid})"
 
+    def stream_interval(self, msgid, interval_us):
+        """GCS_MAVLINK::set_message_interval: the interval in whole milliseconds (truncated;
+        under 1 ms: 1 ms); one the main loop cannot serve (interval_ms * 800 < the loop period
+        in us, i.e. faster than 0.8 x SCHED_LOOP_RATE) is DENIED with a STATUSTEXT."""
+        ms = max(1, int(interval_us) // 1000)
+        if ms * 800 < 1e6 / ARDUCOPTER_LOOP_HZ:
+            return (mavlink.MAV_RESULT_DENIED, None, None,
+                    f"Requested rate for message ID {msgid} too fast. Increase SCHED_LOOP_RATE")
+        return mavlink.MAV_RESULT_ACCEPTED, ms * 1000, ms * 1000, None
+
 
 _CAPS = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
          | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
@@ -645,7 +697,11 @@ def px4():
                request_refused=mavlink.MAV_RESULT_DENIED,
                heartbeat_interval_settable=False,  # set_message_interval: PX4_ERROR
                disarm_denied_text="Disarming denied: not landed",
-               landing_text="Landing detected", takeoff_text="Takeoff detected")
+               landing_text="Landing detected", takeoff_text="Takeoff detected",
+               # Mavlink::update_rate_mult: non-constant streams scaled to the data rate
+               bandwidth_throttle="rate_mult",
+               # TELEM1 (UART7) of fmu-v6x: CONFIG_UART7_TXBUFSIZE=3000 (nuttx defconfig)
+               tx_buffer_bytes=3000)
 
 
 # MAVLink ids with an ap_message (GCS_Common.cpp, map[] in mavlink_id_to_ap_message_id) among
@@ -712,7 +768,12 @@ def ardupilot():
                       arming_refused=mavlink.MAV_RESULT_FAILED,
                       interval_refused=mavlink.MAV_RESULT_DENIED,
                       request_refused=mavlink.MAV_RESULT_FAILED,
-                      heartbeat_interval_settable=True, messages=_ARDUPILOT_MESSAGES)
+                      heartbeat_interval_settable=True, messages=_ARDUPILOT_MESSAGES,
+                      # GCS_MAVLINK: CHECK_PAYLOAD_SIZE defers a message the port's txspace
+                      # cannot take; it goes out on a later pass (update_send)
+                      bandwidth_throttle="payload_space",
+                      # AP_SERIALMANAGER_MAVLINK_BUFSIZE_TX (AP_SerialManager_config.h)
+                      tx_buffer_bytes=256)
 
 
 def personality(name):

@@ -41,6 +41,7 @@ from .mavlink.link import (GCS_RATES, LOOPBACK, LPN, ONBOARD_RATES, Link, Stats,
                            default_ports)
 from .mavlink.offboard import Offboard
 from .mavlink.parameters import Parameters
+from .mavlink.realtime import RealtimeLink
 from .mavlink.receiver import Receiver
 from .mavlink.streams import Streams
 from .mavlink.timesync import Timesync
@@ -61,9 +62,12 @@ class SitlServer:
     def __init__(self, vehicle, autopilot="px4", instance=0, *, lockstep=False, lockstep_dt=0.01,
                  lockstep_timeout=10.0, tick=0.002, signing_key=None, home=(47.397742, 8.545594, 488.0),
                  host=LOOPBACK, offboard_port=None, gcs_port=None, bind_offboard=None,
-                 bind_gcs=None, params=None, link=None, link_seed=None):
+                 bind_gcs=None, params=None, link=None, link_on=("offboard",),
+                 link_bandwidth=None, link_seed=None):
         self.vehicle = vehicle
-        # the link model (sim.link_model.LinkModel) in lockstep: see _on_attitude_target
+        # the link model (sim.link_model.LinkModel): in real time on the datagrams of the links
+        # in ``link_on`` (_impair), in lockstep on the control samples and setpoints
+        # (_on_attitude_target); its draws from ``link_seed`` (default: the vehicle's seed)
         self.link_model = link if (link is not None and not link.perfect) else None
         self.link_seed = vehicle.seed if link_seed is None else link_seed
         self.plink = None
@@ -106,7 +110,8 @@ class SitlServer:
         self.streams = Streams(self.autopilot, self.sysid)
         self.offboard = Offboard(self.autopilot, self.stats, self.statustext_limited,
                                  self._setpoint_arrived)
-        commands = Commands(self.autopilot, self.streams, self.stats, self.statustext)
+        commands = Commands(self.autopilot, self.streams, self.stats, self.statustext,
+                            stream_limits=not self.lockstep)
         self.receiver = Receiver(self.links, self.sysid, self.stats, {
             "COMMAND_LONG": commands.on_command,
             "COMMAND_INT": commands.on_command,
@@ -124,6 +129,26 @@ class SitlServer:
             "MISSION_REQUEST": mission.on_request,
             "FILE_TRANSFER_PROTOCOL": ftp.on_ftp,
         })
+        self.realtime = self._impair(self.link_model, set(link_on), dict(link_bandwidth or {}),
+                                     self.link_seed)
+
+    def _impair(self, model, on, bandwidth, seed):
+        """Bandwidth ({link name: bytes/s}) on the links named, and in real time the link model
+        on the links in ``on``, applied on the wall clock (:mod:`sim.mavlink.realtime`); in
+        lockstep the model is the lockstep path's to apply."""
+        impaired = []
+        for i, link in enumerate(self.links):
+            link.clock = lambda: self.vehicle.time
+            link.stats = self.stats
+            if bandwidth.get(link.name):
+                link.set_bandwidth(bandwidth[link.name], self.ap.tx_buffer_bytes,
+                                   self.ap.bandwidth_throttle)
+            modelled = model is not None and not model.perfect and link.name in on
+            if not self.lockstep and (modelled or link.line is not None):
+                impaired.append(RealtimeLink(link, model if modelled else None, seed, i,
+                                             self.stats, lambda: self.vehicle.time,
+                                             self.receiver.datagram))
+        return impaired
 
     @property
     def local_ports(self):
@@ -190,10 +215,16 @@ class SitlServer:
                     readable, _, _ = select.select(socks, [], [], 0.0)
             else:
                 timeout = max(0.0, next_tick - now)
+                for r in self.realtime:  # wake for the next datagram the link holds back
+                    timeout = min(timeout, max(0.0, r.next_due() - now))
             if not readable:
                 readable, _, _ = select.select(socks, [], [], timeout)
             for sock in readable:
                 self.receiver.drain(by_sock[sock])
+            if self.realtime:
+                now = time.monotonic()
+                for r in self.realtime:
+                    r.release(now)
             if self.lockstep and not self._lockstep_stalled():
                 if self._pending_steps > 0:
                     self._last_step_wall = time.monotonic()

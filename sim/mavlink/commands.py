@@ -23,8 +23,11 @@ def _near(x, value):
 class Commands:
     """The command handlers of ``autopilot``, its messages made by ``streams``."""
 
-    def __init__(self, autopilot, streams, stats, statustext):
+    def __init__(self, autopilot, streams, stats, statustext, stream_limits=True):
         self.autopilot = autopilot
+        #: the autopilot's estimator and scheduler bound a requested interval (real time; in
+        #: lockstep the vehicle's loop runs once per setpoint, at whatever rate that is)
+        self.stream_limits = stream_limits
         self.ap = autopilot.ap
         self.streams = streams
         self.stats = stats
@@ -86,7 +89,7 @@ class Commands:
             return self._set_interval(link, p[0], p[1]), None
         if cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:
             mid = int(p[0])
-            us = link.intervals.get(mid) or -1
+            us = link.requested.get(mid) or -1
             return R, lambda: link.mav.send(M.MAVLink_message_interval_message(mid, us))
         if cmd == M.MAV_CMD_REQUEST_MESSAGE:
             mid = int(p[0]) if math.isfinite(p[0]) else -1
@@ -101,7 +104,9 @@ class Commands:
 
     def _set_interval(self, link, msgid, interval_us):
         """MAV_CMD_SET_MESSAGE_INTERVAL: every ``interval_us`` us (-1: stop, 0: the link's
-        default); HEARTBEAT stays at 1 Hz."""
+        default); HEARTBEAT stays at 1 Hz.  An interval shorter than the autopilot can serve
+        is answered as it answers it (:meth:`sim.personality.Personality.stream_interval`:
+        PX4 ACCEPTED and the stream at the estimator's rate, ArduCopter DENIED)."""
         M = mavlink
         if not (math.isfinite(msgid) and math.isfinite(interval_us)):
             return M.MAV_RESULT_DENIED
@@ -121,6 +126,13 @@ class Commands:
             hz = link.default_rates.get(mid)
             link.set_interval(mid, None if hz is None else int(round(1e6 / hz)))
         else:
-            link.set_interval(mid, max(1, int(round(interval_us))),
-                              due=self.streams.time_us())
+            asked = max(1, int(round(interval_us)))
+            result, runs, reported, text = M.MAV_RESULT_ACCEPTED, asked, asked, None
+            if self.stream_limits:
+                result, runs, reported, text = self.ap.stream_interval(mid, asked)
+            if text:
+                self._say(M.MAV_SEVERITY_INFO, text)
+            if runs is not None:
+                link.set_interval(mid, runs, due=self.streams.time_us(), requested=reported)
+            return result
         return M.MAV_RESULT_ACCEPTED

@@ -7,6 +7,12 @@ on its own: anything malformed, truncated, unknown or badly signed is dropped an
 :class:`Stats`, never acted on.  Streams are scheduled in integer microseconds of vehicle time
 (so that lockstep never drifts a step); the frames of one step go out together, several to a
 datagram as PX4 sends them, except LOCAL_POSITION_NED, which leaves at once on its own.
+
+A link may have a bandwidth (:mod:`sim.mavlink.bandwidth`): its frames then go through a line of
+that many bytes a second, one frame to a datagram (a radio carries a byte stream; its far end
+forwards frame by frame), and its streams slow down as the autopilot's do.  What leaves goes
+through ``transmit(buf, peer, delay_s)``: at once, or, in real time with a link model, on the
+wall clock (:mod:`sim.mavlink.realtime`).
 """
 
 import errno
@@ -16,6 +22,8 @@ import time
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from .bandwidth import DEFAULT_FRAME, STREAM_SHARE, Line, rate_mult
 
 #: the sample a companion's control step runs on
 LPN = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
@@ -72,6 +80,15 @@ class Stats:
     setpoints_ignored: int = 0
     commands: int = 0
     overruns: int = 0
+    # what the link model and the bandwidth did (real time): lost at random, cut by a
+    # blackout, delayed; down = vehicle -> companion, up = companion -> vehicle
+    link_lost_down: int = 0
+    link_lost_up: int = 0
+    link_dark_down: int = 0
+    link_dark_up: int = 0
+    link_delayed_down: int = 0
+    link_delayed_up: int = 0
+    bandwidth_dropped: int = 0  # frames a full transmit buffer could not take
     by_reason: dict = field(default_factory=dict)
 
     def dropped(self):
@@ -80,6 +97,18 @@ class Stats:
 
     def count(self, reason):
         self.by_reason[reason] = self.by_reason.get(reason, 0) + 1
+
+    def link_summary(self):
+        """One line on what the link model and the bandwidth did (None: nothing)."""
+        parts = []
+        for way in ("down", "up"):
+            lost, dark, late = (getattr(self, f"link_{k}_{way}")
+                                for k in ("lost", "dark", "delayed"))
+            if lost or dark or late:
+                parts.append(f"{way}: {lost} lost, {dark} in blackouts, {late} delayed")
+        if self.bandwidth_dropped:
+            parts.append(f"{self.bandwidth_dropped} frames over the bandwidth")
+        return "; ".join(parts) or None
 
 
 def default_ports(instance, offboard_port=None, gcs_port=None, bind_offboard=None, bind_gcs=None):
@@ -162,8 +191,18 @@ class Link:
         if signing_key is not None:
             _setup_signing(self.mav, signing_key)
         self.default_rates = dict(rates)
-        self.intervals = {}
+        self.intervals = {}  # {msgid: us} the stream runs at
+        self.requested = {}  # {msgid: us} GET_MESSAGE_INTERVAL reports
         self.next_due = {}
+        self.transmit = self._transmit
+        self.inbound = None  # takes each received datagram instead (sim.mavlink.realtime)
+        self.clock = lambda: 0.0  # vehicle time (s): the line's clock
+        self.stats = None
+        self.line = None  # a bandwidth-limited line (sim.mavlink.bandwidth.Line)
+        self.throttle = "rate_mult"
+        self.rate_mult = 1.0
+        self._mult_due = 0
+        self.sizes = {}  # {msgid: average frame size (bytes)}
         for mid, hz in rates.items():
             self.set_interval(mid, int(round(1e6 / hz)), due=0)
         self.parser = None  # reused across datagrams while they parse cleanly
@@ -221,18 +260,40 @@ class Link:
 
     # --- sending ---------------------------------------------------------------------------------
 
+    def set_bandwidth(self, bytes_per_s, buffer_bytes, throttle):
+        """Carry this link's frames over a line of ``bytes_per_s`` behind a transmit buffer of
+        ``buffer_bytes``, its streams throttled the ``throttle`` way ("rate_mult" or
+        "payload_space", :mod:`sim.mavlink.bandwidth`)."""
+        self.line = Line(bytes_per_s, buffer_bytes)
+        self.throttle = throttle
+        self._mult_due = 0
+
     def sendto(self, buf):
+        delay = 0.0
+        if self.line is not None:
+            delay = self.line.put(self.clock(), len(buf))
+            if delay is None:
+                if self.stats is not None:
+                    self.stats.bandwidth_dropped += 1
+                return
         for peer in self.peers:
-            try:
-                self.sock.sendto(buf, peer)
-            except OSError:
-                pass
+            self.transmit(buf, peer, delay)
+
+    def _transmit(self, buf, peer, delay=0.0):
+        try:
+            self.sock.sendto(buf, peer)
+        except OSError:
+            pass
 
     def begin(self):
         self.batch = []
 
     def flush(self):
         frames, self.batch = self.batch, None
+        if self.line is not None:  # a byte stream: each frame on its own
+            for f in frames or ():
+                self.sendto(f)
+            return
         chunk = b""
         for f in frames or ():
             if chunk and len(chunk) + len(f) > self.MAX_DATAGRAM:
@@ -242,12 +303,15 @@ class Link:
         if chunk:
             self.sendto(chunk)
 
-    def set_interval(self, mid, interval_us, due=None):
+    def set_interval(self, mid, interval_us, due=None, requested=None):
         """Schedule message ``mid`` every ``interval_us`` us of vehicle time (None: never),
-        next at ``due`` if given.  LOCAL_POSITION_NED stays first in the schedule (it goes out
-        in a datagram of its own, so a companion's control step can start while the rest of
-        the step's telemetry is still being built)."""
+        next at ``due`` if given; ``requested`` is the interval reported for it (default
+        ``interval_us``).  LOCAL_POSITION_NED stays first in the schedule (it goes out in a
+        datagram of its own, so a companion's control step can start while the rest of the
+        step's telemetry is still being built)."""
         self.intervals[mid] = interval_us
+        self.requested[mid] = interval_us if requested is None else requested
+        self._mult_due = 0
         if due is not None:
             self.next_due[mid] = due
         if LPN in self.intervals:
@@ -259,16 +323,39 @@ class Link:
         ``build(msgid)`` (None: not produced), as one batch."""
         if t < self.next_any:
             return  # nothing of this link's schedule is due
+        line = self.line
+        mult = 1.0
+        if line is not None and self.throttle == "rate_mult":
+            if t >= self._mult_due:
+                self._update_rate_mult()
+                self._mult_due = t + 100_000
+            mult = self.rate_mult
+        waits = line is not None and self.throttle == "payload_space"
         self.begin()
         next_any = math.inf
-        for mid, interval in self.intervals.items():
+        schedule = self.intervals.items()
+        if waits:  # the most overdue first, as ArduPilot's buckets take turns
+            schedule = sorted(schedule, key=lambda item: self.next_due.get(item[0], 0))
+        for mid, interval in schedule:
             if not interval:
                 continue
+            if mult < 1.0:
+                interval = max(interval, int(self.requested.get(mid, interval) / mult))
             due = self.next_due.get(mid, 0)
             if t >= due:
+                if waits and (line.backlog(t * 1e-6) + sum(map(len, self.batch))
+                              + self.sizes.get(mid, DEFAULT_FRAME) > STREAM_SHARE * line.buffer):
+                    # no room in the port: this pass ends here, and the message and the rest
+                    # wait for the next (GCS_MAVLINK::update_send stops at the first one that
+                    # does not fit)
+                    next_any = min(next_any, due)
+                    break
                 msg = build(mid)
                 if msg is not None:
                     self.mav.send(msg)
+                    if self.batch:
+                        n = len(self.batch[-1])
+                        self.sizes[mid] = 0.9 * self.sizes.get(mid, n) + 0.1 * n
                     if mid == LPN:  # the sample leaves at once, on its own
                         self.flush()
                         self.begin()
@@ -278,6 +365,14 @@ class Link:
                 next_any = due
         self.next_any = next_any
         self.flush()
+
+    def _update_rate_mult(self):
+        """PX4's Mavlink::update_rate_mult over this link's streams for a data rate of half the
+        line (HEARTBEAT, 1 Hz, is the constant-rate stream)."""
+        hb = 21 + (13 if self.mav.signing.sign_outgoing else 0)
+        streams = [(self.sizes.get(mid, DEFAULT_FRAME), self.requested.get(mid, us))
+                   for mid, us in self.intervals.items() if us]
+        self.rate_mult = rate_mult(STREAM_SHARE * self.line.rate, streams, hb)
 
 
 def _setup_signing(mav, key):

@@ -34,14 +34,21 @@ class Receiver:
                 data, addr = link.sock.recvfrom(65535)
             except OSError:  # nothing more to read (or the socket is gone)
                 return
-            self.stats.datagrams += 1
-            link.learn(addr)
-            for msg in link.parse(data, self.stats):
-                try:
-                    self.handle(link, msg)
-                except Exception:  # a message we cannot act on never stops the vehicle
-                    log.exception("error handling %s", msg.get_type())
-                    self.stats.count("handler_error")
+            if link.inbound is not None:  # a link model decides when (and if) it arrives
+                link.inbound(data, addr)
+            else:
+                self.datagram(link, data, addr)
+
+    def datagram(self, link, data, addr):
+        """Handle one datagram received on ``link`` from ``addr``."""
+        self.stats.datagrams += 1
+        link.learn(addr)
+        for msg in link.parse(data, self.stats):
+            try:
+                self.handle(link, msg)
+            except Exception:  # a message we cannot act on never stops the vehicle
+                log.exception("error handling %s", msg.get_type())
+                self.stats.count("handler_error")
 
     def handle(self, link, msg):
         handler = self.handlers.get(msg.get_type())
