@@ -412,6 +412,11 @@ def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, 
                          dt=1.0 / m.controller.rate_hz, aborted=aborted,
                          ref_acc=cols["ref_acc"], true_dist=cols["dist"],
                          hover_thrust=hover_thrust, **yaw))
+    if c.kind != "oracle":
+        from .margin import spec_margin
+
+        rec["delay_margin_s"] = spec_margin(m.controller, c.kind, m.vehicle or "crazyflie",
+                                            m.attitude_controller)
     rec["wall_s"] = wall
     return rec
 

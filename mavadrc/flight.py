@@ -49,6 +49,7 @@ from .failsafe import Failsafes
 from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
+from .margin import delay_margin, margin_record
 from .record import Recorder, attitude_oscillation
 from .samples import SampleGate
 from .supervisor import GIVE_UP, LAND, Supervisor
@@ -210,6 +211,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.latency = []
         self.ages = []
         self.ctrl = None
+        self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
         self.traj = None
         self.origin = None
         self.mission_start = None
@@ -309,6 +311,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=self.kind,
                                vehicle=self.m.vehicle, attitude_controller=self.m.attitude_controller,
                                rate_hz=self.rate)
+        self.delay_margin = delay_margin(ctrl)
         ctrl.reset(np.zeros(3))
         ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         ctrl.reset()
@@ -691,6 +694,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "warnings": list(self.warnings),
             "vehicle_messages": self.texts[-50:],
         }
+        if self.ctrl is not None:
+            summary["delay_margin_s"] = margin_record(self.delay_margin)
         if self._attitudes:
             a = np.asarray(self._attitudes)
             osc = attitude_oscillation(a[:, 0], a[:, 1], a[:, 2])

@@ -13,6 +13,7 @@ import numpy as np
 
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
+from .margin import margin_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
 
@@ -172,7 +173,7 @@ class GroundPhases:
         self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
         self.gate.restart(self.h)
         self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
-                 f"({self.traj.duration:.1f} s)")
+                 f"({self.traj.duration:.1f} s); {margin_text(self.delay_margin)}")
         self._enter("mission", s)
 
     def _ph_touchdown(self, s):

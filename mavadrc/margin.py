@@ -1,0 +1,153 @@
+"""Delay margin of a position controller: how much delay its loop tolerates before it goes unstable.
+
+One horizontal channel, linearised where it rests (zero error, hover), closed around a plant that
+produces the commanded acceleration through a first-order lag ``tau`` after ``delay`` seconds:
+
+    p'' = a,   a' = (u(t - delay) - a) / tau      (tau = 0: a = u(t - delay))
+
+sampled at the controller's step h with the command held between samples (exact zero-order hold).
+The controller is the real one, its compiled channel kernel and input model, not a formula: the
+closed loop's one-step map is differentiated numerically at rest (every nonlinearity of the
+classical ADRC, fhan and fal, is linear there; no limit is active), and the loop is stable when
+that Jacobian's spectral radius is below 1.  The delay margin is the largest extra delay, in whole
+samples, that keeps it so; a limit cycle is what a loop past its margin does (the nonlinearities
+and the tilt limit bound its amplitude).
+
+``delay_margin(ctrl)`` judges a controller on the plant it believes in (its own input model, no
+delay): the extra lag and delay a vehicle may add before the loop oscillates.
+``delay_margin(ctrl, tau=0.25, delay=0.05)`` judges it on a given plant.
+"""
+
+import math
+
+import numpy as np
+
+from .control import kernels as K
+from .control.position import IN_ALPHA, IN_TAU
+
+#: the longest extra delay searched (s)
+MAX_EXTRA_S = 1.0
+_EPS = 1e-7  # finite-difference step: far inside fal's zone and fhan's linear region
+
+
+def _plant(tau, h):
+    """(A, B) of the sampled plant state (p, v, a) under a held command u."""
+    if tau <= 0.0:
+        return (np.array([[1.0, h, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]),
+                np.array([0.5 * h * h, h, 1.0]))
+    from scipy.linalg import expm
+
+    m = np.zeros((4, 4))
+    m[0, 1] = 1.0
+    m[1, 2] = 1.0
+    m[2, 2] = -1.0 / tau
+    m[2, 3] = 1.0 / tau
+    e = expm(m * h)
+    return e[:3, :3], e[:3, 3]
+
+
+class _Loop:
+    """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay."""
+
+    def __init__(self, ctrl, tau, n):
+        self.p = ctrl._P[0].copy()
+        self.h = float(self.p[K.P_H])
+        self.alpha = float(ctrl._IN[0, IN_ALPHA])
+        self.A, self.B = _plant(tau, self.h)
+        self.n = n
+        self.ns = K.NS
+        self.size = self.ns + 1 + 3 + n  # channel state, input model, plant, command buffer
+
+    def step(self, z):
+        ns, n = self.ns, self.n
+        s = z[:ns].copy()
+        obs = z[ns]
+        x = z[ns + 1:ns + 4]
+        buf = z[ns + 4:]
+        y, ydot = x[0], x[1]
+        u = K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, 0.0)
+        obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
+        s[K.S_U] = obs
+        if n:
+            applied = buf[-1]
+            buf = np.concatenate([[u], buf[:-1]])
+        else:
+            applied = u
+        x = self.A @ x + self.B * applied
+        return np.concatenate([s, [obs], x, buf])
+
+    def radius(self):
+        z0 = np.zeros(self.size)
+        s = np.zeros(K.NS)
+        K.channel_start(s, self.p, 0.0, 0.0)  # at rest, started (not waiting for a first sample)
+        z0[:self.ns] = s
+        J = np.empty((self.size, self.size))
+        for j in range(self.size):
+            d = np.zeros(self.size)
+            d[j] = _EPS
+            J[:, j] = (self.step(z0 + d) - self.step(z0 - d)) / (2.0 * _EPS)
+        # entries of the channel's state vector that this kind does not use carry over
+        # unchanged and touch nothing: not part of the loop
+        keep = [j for j in range(self.size)
+                if not (abs(J[j, j] - 1.0) < 1e-9 and np.count_nonzero(np.abs(J[j]) > 1e-9) == 1
+                        and np.count_nonzero(np.abs(J[:, j]) > 1e-9) == 1)]
+        J = J[np.ix_(keep, keep)]
+        return float(max(abs(np.linalg.eigvals(J))))
+
+
+def spectral_radius(ctrl, tau=None, delay=0.0):
+    """The linearised closed loop's spectral radius (< 1: stable) on the plant (lag ``tau`` s,
+    default the controller's own input model; ``delay`` s, rounded to samples)."""
+    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    h = float(ctrl._P[0, K.P_H])
+    return _Loop(ctrl, tau, int(round(delay / h))).radius()
+
+
+def delay_margin(ctrl, tau=None, delay=0.0, max_extra_s=MAX_EXTRA_S):
+    """The extra delay (s, in whole control periods) the loop tolerates on the plant (lag ``tau``,
+    default the controller's input model; ``delay`` s already there) before its linearisation
+    is unstable: 0.0 if it is unstable with no extra delay (``math.inf`` past ``max_extra_s``).
+    ``ctrl``: a :class:`mavadrc.control.position.PositionController`, at rest or not (its state
+    is not touched)."""
+    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    h = float(ctrl._P[0, K.P_H])
+    n0 = int(round(delay / h))
+    if _Loop(ctrl, tau, n0).radius() >= 1.0:
+        return 0.0
+    stable = 0
+    for extra in range(1, int(math.ceil(max_extra_s / h)) + 1):
+        if _Loop(ctrl, tau, n0 + extra).radius() >= 1.0:
+            return stable * h
+        stable = extra
+    return math.inf
+
+
+def margin_record(margin):
+    """The margin as summary.json and the records carry it: seconds, or None past the search."""
+    return None if margin is None or math.isinf(margin) else float(margin)
+
+
+def margin_text(margin):
+    """The delay margin for a console line."""
+    if margin is None or math.isinf(margin):
+        return f"delay margin over {MAX_EXTRA_S:g} s"
+    if margin == 0.0:
+        return ("no delay margin: unstable on the plant it assumes, expect a limit cycle")
+    return (f"delay margin {1e3 * margin:.0f} ms (a vehicle slower than its input model by more "
+            f"will make it oscillate)")
+
+
+_SPEC_MARGINS = {}
+
+
+def spec_margin(spec, kind=None, vehicle=None, attitude_controller="px4"):
+    """:func:`delay_margin` of a mission's controller spec (cached: an experiment asks for the
+    same few controllers in every run)."""
+    from .flight import make_controller
+
+    key = (repr(spec), kind, repr(vehicle), attitude_controller)
+    if key not in _SPEC_MARGINS:
+        ctrl = make_controller(spec, hover_thrust=0.5, kind=kind, vehicle=vehicle,
+                               attitude_controller=attitude_controller)
+        _SPEC_MARGINS[key] = margin_record(delay_margin(ctrl))
+    return _SPEC_MARGINS[key]
