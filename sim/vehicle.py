@@ -31,7 +31,7 @@ from .firmware import attitude as A
 from .firmware import position as PL
 from .firmware.mixer import Mixer
 from .params import VehicleParams, load_vehicle
-from .sensors import Sensors
+from .sensors import NNOISE, Sensors
 from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
 
 MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
@@ -229,6 +229,7 @@ class SimVehicle:
         self._xm = self._x.copy()
         self._xr = self._x
         self._measured_tick = None
+        self._estimate_outside = False
         self._fs = np.zeros(A.NFS)
         self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
         self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
@@ -332,6 +333,20 @@ class SimVehicle:
             packed = pack_wind(Wind())
         return packed, (self._v_wind, self._f_ext, self._tau_ext)
 
+    def kernel_sensors(self, ticks):
+        """(xm, noise, sigmas) for a caller that runs the next ``ticks`` physics steps on
+        :meth:`kernel_state` itself, step by step, reading each step's end state into ``xm`` with
+        :func:`sim.sensors.measure_into` (``noise`` row by row), as :meth:`step` does: ``xm`` is
+        the estimate the firmware flies on (the vehicle's own array, this tick's reading), the
+        noise is taken now from the sensor model's own stream (:meth:`sim.sensors.Sensors.draws`),
+        so it goes on where the vehicle's steps left it.  The sensor latency is the caller's to
+        model.  Without noise: (the true state itself, no rows, zero sigmas)."""
+        if self._estimate is None or not any(v > 0.0 for v in self._estimate.noise.values()):
+            return self._x, np.zeros((0, NNOISE)), np.zeros(4)
+        self._measure()
+        self._estimate_outside = True  # ran() takes the estimate as of its tick
+        return self._xm, self._estimate.draws(ticks), self._estimate.sigmas()
+
     @property
     def tick(self):
         """Physics steps since boot."""
@@ -343,6 +358,10 @@ class SimVehicle:
         self._tick += int(ticks)
         self._target_time = self._tick * self.physics_dt
         self._mode = "attitude"
+        if self._estimate_outside:  # kernel_sensors' estimate was read of every step
+            self._measured_tick = self._tick
+            self._xr = self._xm if self._report is None else self._report.measure(self.time,
+                                                                                  self._xm)
 
     def reported(self):
         """The state as the vehicle reports it: truth, or with a sensor model the firmware's
