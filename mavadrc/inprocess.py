@@ -41,8 +41,8 @@ from sim import physics as phys
 from sim.firmware import attitude as A
 from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
-from sim.sensors import TYPICAL_NOISE, measure_into
-from sim.vehicle import SimVehicle, advance_wind_into
+from sim.sensors import TYPICAL_NOISE
+from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into
 from sim.wind import WIND_SCRATCH
 
 from .control import geometry as G
@@ -146,11 +146,9 @@ def _period(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, nois
                           eta[r:r + per], v_wind, f_ext, tau_ext, dt, per, tick, att_div, pos_div,
                           pos_dt, scratch, ws)
         return
-    for i in range(per):
-        advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
-                          eta[r + i:r + i + 1], v_wind, f_ext, tau_ext, dt, 1, tick + i, att_div,
-                          pos_div, pos_dt, scratch, ws)
-        measure_into(x, noise[r + i], sig, xm)
+    advance_wind_measured_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                               eta[r:r + per], noise[r:r + per], sig, v_wind, f_ext, tau_ext, dt,
+                               per, tick, att_div, pos_div, pos_dt, scratch, ws)
 
 
 @jit

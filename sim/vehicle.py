@@ -31,7 +31,7 @@ from .firmware import attitude as A
 from .firmware import position as PL
 from .firmware.mixer import Mixer
 from .params import VehicleParams, load_vehicle
-from .sensors import NNOISE, Sensors
+from .sensors import NNOISE, Sensors, measure_into
 from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
 
 MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
@@ -100,6 +100,20 @@ def advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
         if t % att_div == 0:
             A.inner_step(fs, fp, S, P, W, mx, xm, sp, omega, wk)
         phys.rk4_step(x, omega, pv, v_wind, f_ext, tau_ext, dt, ws)
+
+
+@jit
+def advance_wind_measured_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta,
+                               noise, sig, v_wind, f_ext, tau_ext, dt, n, tick, att_div, pos_div,
+                               pos_dt, scratch, ws):
+    """:func:`advance_wind_into` with a sensor model: n steps one by one, the firmware flying on
+    the estimate ``xm``, into which each step's end state is read with that step's row of
+    ``noise`` (:meth:`sim.sensors.Sensors.draws`, ``sig`` its sigmas)."""
+    for k in range(n):
+        advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                          eta[k:k + 1], v_wind, f_ext, tau_ext, dt, 1, tick + k, att_div, pos_div,
+                          pos_dt, scratch, ws)
+        measure_into(x, noise[k], sig, xm)
 
 
 def child_seeds(seed, n=2):
@@ -240,6 +254,8 @@ class SimVehicle:
         self._sp[A.SP_ATT_VALID] = 1.0
         self._omega = np.zeros(4)
         self._wk = np.zeros(A.NWK)
+        self._scratch = np.empty(WIND_SCRATCH)
+        self._ws = np.empty((5, phys.NX))
         self._v_wind = np.zeros(3)
         self._f_ext = np.zeros(3)
         self._tau_ext = np.zeros(3)
@@ -479,14 +495,29 @@ class SimVehicle:
         end = int(math.floor(self._target_time / self.physics_dt + 1e-6))
         fw = self.fw
         packed = self._packed
-        per_step = (self.wind is not None and packed is None) or self.sensors is not None
+        # a sensor model without report latency reads every step in the compiled loop, its noise
+        # drawn ahead for the steps up to the next position-loop tick
+        measured = packed is not None and self.sensors is not None and self._report is None
+        per_step = ((self.wind is not None and packed is None) or self.sensors is not None) \
+            and not measured
         while self._tick < end:
             tick = self._tick
-            if per_step:
+            if per_step or measured:
                 self._measure()
             if tick % fw.pos_div == 0:
                 self._outer()
             n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
+            if measured:
+                est = self._estimate
+                advance_wind_measured_into(
+                    self._x, self._xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp,
+                    self._omega, self._wk, self._pv, packed.params, packed.state,
+                    packed.normals(n), est.draws(n), est.sigmas(), self._v_wind, self._f_ext,
+                    self._tau_ext, self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt,
+                    self._scratch, self._ws)
+                self._tick += n
+                self._measured_tick = self._tick
+                continue
             if packed is not None:
                 xm = self._xm if self.sensors is not None else self._x
                 advance_wind(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx,
