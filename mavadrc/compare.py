@@ -102,11 +102,6 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
         runs = [r for r in runs if exp.controllers[r[1]].kind != "oracle"]
         if skipped:
             stream.write(f"{len(skipped)} oracle runs skipped: the oracle runs in process only\n")
-    else:
-        noisy = [sc.name for sc in exp.scenarios if sc.mission.noise]
-        if noisy:
-            raise ValueError(f"scenario(s) {', '.join(noisy)} fly with sensor noise, which only "
-                             f"the bundled vehicle's server models: use --via mavlink")
     same = {}  # run -> the run whose record it shares
     if not rerun_identical and len(seeds) > 1:
         first = keep_logs_seed if keep_logs_seed in seeds else seeds[0]

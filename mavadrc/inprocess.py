@@ -16,10 +16,15 @@ This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink fl
   the setpoint quaternion and thrust, the millisecond boot time);
 * the same position controller (:func:`mavadrc.control.position.position_update`) and the same
   safety checks (geofence, altitude, speed: the run stops there, as the flight hands over to the
-  autopilot's land mode).
+  autopilot's land mode);
+* the same sensors: with ``sim: {noise: true}`` the server's noise (``--noise``,
+  :data:`sim.sensors.TYPICAL_NOISE`) drawn from the vehicle's own stream in the same order, the
+  firmware flying on the noisy estimate and the samples taken of it; the sensor latency as whole
+  control periods of delay on the samples (``--latency``).
 
 The ground phase and the mission each run in one compiled call:
-controller, wind (:func:`sim.wind.pack_wind`), firmware and physics.  ``mavadrc compare --via
+controller, wind (:func:`sim.wind.pack_wind`), sensor noise, firmware and physics (a period in
+one call of the firmware's loop without noise, step by step with it).  ``mavadrc compare --via
 mavlink`` flies the same runs over MAVLink, and a test holds the two paths to 1 mm RMS.
 
 The ``oracle`` controller exists only here: the PD law with the simulator's true disturbance
@@ -36,7 +41,8 @@ from sim import physics as phys
 from sim.firmware import attitude as A
 from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
-from sim.vehicle import SimVehicle, advance_wind_into
+from sim.sensors import TYPICAL_NOISE
+from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into
 from sim.wind import WIND_SCRATCH
 
 from .control import geometry as G
@@ -128,16 +134,37 @@ def _store(x, k, spos, svel, syaw, e, eul):
 
 
 @jit
+def _period(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, noise, sig, v_wind,
+            f_ext, tau_ext, dt, r, per, tick, att_div, pos_div, pos_dt, scratch, ws):
+    """One control period: ``per`` physics steps from ``tick``, with rows ``r`` on of ``eta``
+    (the wind's normals) and ``noise`` (:meth:`sim.sensors.Sensors.draws`).  Without noise (no
+    rows; ``xm`` is ``x``) the firmware flies on the truth and the period runs in one call; with
+    noise it runs step by step, the firmware flying on the estimate ``xm``, which each step's
+    end state is read into (:func:`sim.sensors.measure_into`), as the vehicle does it."""
+    if noise.shape[0] == 0:
+        advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                          eta[r:r + per], v_wind, f_ext, tau_ext, dt, per, tick, att_div, pos_div,
+                          pos_dt, scratch, ws)
+        return
+    advance_wind_measured_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                               eta[r:r + per], noise[r:r + per], sig, v_wind, f_ext, tau_ext, dt,
+                               per, tick, att_div, pos_div, pos_dt, scratch, ws)
+
+
+@jit
 def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
-                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, k0, k_end, delivered, applied,
-                lag, stimes, t0, spos, svel, syaw, spq, spt, refs, Sc, Pc, Mc, INc, oracle,
-                limits, max_gap, origin, rules, lifted, yaw_offset, log):
+                tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, xm, noise, sig, k0, k_end,
+                delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, refs, Sc, Pc,
+                Mc, INc, oracle, limits, max_gap, origin, rules, lifted, yaw_offset, log):
     """Fly the mission from period ``k0`` (periods count from the arming) to at most ``k_end``.
 
-    Each period ``k``: the vehicle takes its sample (``spos``/``svel``/``syaw`` at ``k``); if
-    the companion gets one now (``delivered[k]`` = the period it was taken, -1: none) it runs
-    a control step on it (data of period ``s - lag``: the sensor latency, at the sample's time
-    ``stimes[s]``, mission time from ``t0``; the interval since the last sample it got), the
+    Each period ``k``: the vehicle takes its sample of its estimate ``xm`` (the truth ``x``
+    itself without noise; ``noise`` and ``sig`` as :func:`_period` takes them) into
+    ``spos``/``svel``/``syaw`` at row ``k + lag`` (rows before ``lag``: the samples of the
+    periods before the arming); if the companion gets one now (``delivered[k]`` = the period
+    ``s`` it was taken, -1: none) it runs a control step on row ``s`` (data of period
+    ``s - lag``: the sensor latency, at the sample's time ``stimes[s]``, mission time from
+    ``t0``; the interval since the last sample it got), the
     reference of ``refs`` row by row (N, 10: pos, vel, acc, yaw), and makes a setpoint (float32,
     into ``spq``/``spt`` at ``k``); the vehicle applies setpoint ``applied[k]`` if one arrives
     (-1: keeps the last) and runs ``per`` physics steps.  ``limits`` = [north lo, hi, east lo,
@@ -164,10 +191,10 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     nrows = refs.shape[0]
     prev = -1.0
     for k in range(k0, k_end):
-        _store(x, k, spos, svel, syaw, e, eul)
+        _store(xm, k + lag, spos, svel, syaw, e, eul)
         s = delivered[k]
         if s >= 0:
-            d = max(s - lag, 0)
+            d = s  # the sample of period s - lag
             for i in range(3):
                 pos[i] = spos[d, i]
                 vel[i] = svel[d, i]
@@ -228,9 +255,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
         a = applied[k]
         if a >= 0:
             _attitude_setpoint(sp, spq[a, 0], spq[a, 1], spq[a, 2], spq[a, 3], spt[a])
-        advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
-                          eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
-                          per, tick, att_div, pos_div, pos_dt, scratch, ws)
+        _period(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, noise, sig, v_wind,
+                f_ext, tau_ext, dt, tick - tick0, per, tick, att_div, pos_div, pos_dt, scratch,
+                ws)
         tick += per
         if j == nrows:
             return j, STATUS_OK, k - k0 + 1
@@ -239,18 +266,21 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
 
 @jit
 def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext, tau_ext,
-          dt, tick0, att_div, pos_div, pos_dt, per, n, delivered, applied, lag, stimes,
-          thrusts, last_k, spos, svel, syaw, spq, spt, origin, rules, start):
+          dt, tick0, att_div, pos_div, pos_dt, per, xm, noise, sig, n, delivered, applied, lag,
+          yaw_before, stimes, thrusts, last_k, spos, svel, syaw, spq, spt, origin, rules, start):
     """The flight's ground phase from the arming (period 0), one setpoint per sample the
-    companion gets (``delivered``, as in :func:`closed_loop`): level at the sample's heading
-    (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it) with the spool-up thrust of the
-    sample's time (``thrusts``, by the period the sample was taken), applied as ``applied``
-    says, then ``per`` physics steps.
+    companion gets (``delivered``, the samples and the estimate as in :func:`closed_loop`):
+    level at the heading the flight knows then, that of the ATTITUDE of the period before
+    (float32, as ATTITUDE and SET_ATTITUDE_TARGET carry it; LOCAL_POSITION_NED comes first in
+    a period's messages, and ATTITUDE is not subject to the link: ``syaw`` at row ``k - 1``,
+    ``yaw_before`` at period 0), with the spool-up thrust of
+    the sample's time (``thrusts``, by the period the sample was taken), applied as
+    ``applied`` says, then ``per`` physics steps.
 
     Ends after the sample that shows the vehicle lifting off (relative to ``origin``) or the
     one taken at ``last_k`` or later (the mission's start time); ``start`` gets that sample's
-    float32 position and heading (where the mission starts) and the period it was taken.
-    Returns the number of periods flown (0: no such sample within ``n``)."""
+    float32 position, the heading then (where the mission starts) and the period it was
+    taken.  Returns the number of periods flown (0: no such sample within ``n``)."""
     e = np.empty(4)
     eul = np.empty(3)
     pos = np.empty(3)
@@ -259,15 +289,15 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
     ws = np.empty((5, phys.NX))
     tick = tick0
     for k in range(n):
-        _store(x, k, spos, svel, syaw, e, eul)
+        _store(xm, k + lag, spos, svel, syaw, e, eul)
         s = delivered[k]
         last = False
         if s >= 0:
-            d = max(s - lag, 0)
+            d = s  # the sample of period s - lag
             for i in range(3):
                 pos[i] = spos[d, i]
                 vel[i] = svel[d, i]
-            yaw = syaw[d]
+            yaw = syaw[k - 1] if k >= 1 else yaw_before
             last = s >= last_k or _lifted(pos, vel, origin, rules)
             if last:
                 for i in range(3):
@@ -282,9 +312,9 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
         a = applied[k]
         if a >= 0:
             _attitude_setpoint(sp, spq[a, 0], spq[a, 1], spq[a, 2], spq[a, 3], spt[a])
-        advance_wind_into(x, x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
-                          eta[(tick - tick0):(tick - tick0) + per], v_wind, f_ext, tau_ext, dt,
-                          per, tick, att_div, pos_div, pos_dt, scratch, ws)
+        _period(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, noise, sig, v_wind,
+                f_ext, tau_ext, dt, tick - tick0, per, tick, att_div, pos_div, pos_dt, scratch,
+                ws)
         tick += per
         if last:
             return k + 1
@@ -320,15 +350,14 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     true disturbance fed forward); ``seed``/``wind`` override the mission's (as ``mavadrc fly``'s
     options do).  ``vehicle_options``: extra :class:`SimVehicle` keywords.
     """
-    if mission.noise:
-        raise ValueError("sensor noise is modelled by the bundled vehicle's server only: fly "
-                         "this mission over MAVLink")
     kind = kind or mission.controller.kind
     oracle = kind == "oracle"
     spec = mission.controller
     seed = mission.seed if seed is None else seed
     wind = mission.wind if wind is None else wind
     options = {"yaw": math.radians(mission.heading_deg), **dict(vehicle_options or {})}
+    if mission.noise:  # the server's --noise; its latency is the lag below
+        options.setdefault("sensors", {"noise": TYPICAL_NOISE})
     v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,
                    attitude_controller=mission.attitude_controller, **options)
     h = 1.0 / spec.rate_hz
@@ -344,10 +373,23 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
                            vehicle=v.params, attitude_controller=mission.attitude_controller)
-    # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START
-    v.step(round(ARM_AT / h) * h)
-    r = v.reported()
-    origin = f32(r.position)
+    # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START.  The
+    # samples of the last ``lag`` periods before the arming are what the companion gets in the
+    # first ``lag`` periods after it (the sensor latency); the mission's origin is the first
+    # sample the flight gets, at the end of the first period (that of period 1 - lag, or of
+    # the vehicle's boot while the latency reaches back before it)
+    n_arm = round(ARM_AT / h)
+    k_origin = max(1 - lag, 0)
+    v.step(k_origin * h)
+    origin = f32(v.reported().position)
+    v.step((n_arm - lag - 1 - k_origin) * h)
+    before = []  # periods -lag-1 .. -1
+    for _ in range(lag + 1):
+        before.append(v.reported())
+        v.step(h)
+    # the heading the ATTITUDE of period -1 carries (what the flight's first spool-up setpoint
+    # levels at)
+    yaw_before = float(f32(before[0].euler[2]))
     traj, phases = mission.build_trajectory(origin)
     v.arm()
     # periods from the arming on: the samples the companion gets and the setpoints the vehicle
@@ -374,16 +416,21 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         applied[k_link:] = np.where(a >= 0, a + k_link, -1)
     last_k = int(np.argmax(stimes >= MISSION_START - 1e-9))
     thrusts = f32(spool_thrust(stimes, MISSION_START, hover))
-    spos = np.zeros((n, 3))
-    svel = np.zeros((n, 3))
-    syaw = np.zeros(n)
+    spos = np.zeros((n + lag, 3))  # row k + lag: the sample of period k
+    svel = np.zeros((n + lag, 3))
+    syaw = np.zeros(n + lag)
+    for i, b in enumerate(before[1:]):
+        spos[i] = f32(b.position)
+        svel[i] = f32(b.velocity)
+        syaw[i] = f32(b.euler[2])
     spq = np.zeros((n, 4))
     spt = np.zeros(n)
     eta = packed.normals(n * per)  # the wind's draws, in the order the vehicle makes them
+    sensing = v.kernel_sensors(n * per)  # and the sensors' (none without noise)
     start = np.zeros(5)
-    sent = spool(*state, packed.params, packed.state, eta, *wind_out, dt, tick0, *timing, n_pre,
-                 delivered, applied, lag, stimes, thrusts, last_k, spos, svel, syaw, spq, spt,
-                 origin, GROUND_RULES, start)
+    sent = spool(*state, packed.params, packed.state, eta, *wind_out, dt, tick0, *timing,
+                 *sensing, n_pre, delivered, applied, lag, yaw_before, stimes, thrusts, last_k,
+                 spos, svel, syaw, spq, spt, origin, GROUND_RULES, start)
     if sent == 0:
         raise RuntimeError("the link delivered no sample to start the mission on")
     ctrl.reset(start[:3])
@@ -404,11 +451,12 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                        sf.max_speed], dtype=float)
     Pc, Mc = ctrl.params
     yaw_offset = wrap_pi(start[3] - float(traj.sample(0.0).yaw))
+    xm, noise, sig = sensing
     rows, status, flown = closed_loop(
         *state, packed.params, packed.state, eta[sent * per:], *wind_out, dt, v.tick, *timing,
-        sent, n, delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, ref, ctrl._S,
-        Pc, Mc, ctrl._IN, oracle, limits, sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset,
-        log)
+        xm, noise[sent * per:], sig, sent, n, delivered, applied, lag, stimes, t0, spos, svel,
+        syaw, spq, spt, ref, ctrl._S, Pc, Mc, ctrl._IN, oracle, limits, sf.max_gap_s, origin,
+        GROUND_RULES, False, yaw_offset, log)
     v.ran(flown * per)
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 

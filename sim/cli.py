@@ -9,6 +9,7 @@ import threading
 
 from .link_flags import add_link_arguments, link_args, link_from_args  # noqa: F401
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
+from .sensors import TYPICAL_NOISE
 from .server import SitlServer
 
 
@@ -65,7 +66,7 @@ def add_arguments(p):
     return p
 
 
-NOISE = {"position": 0.01, "velocity": 0.02, "attitude": 0.002, "rates": 0.01}
+NOISE = TYPICAL_NOISE  # --noise
 
 
 def warm_up(vehicle, wind, attitude_controller):

@@ -31,7 +31,7 @@ from .firmware import attitude as A
 from .firmware import position as PL
 from .firmware.mixer import Mixer
 from .params import VehicleParams, load_vehicle
-from .sensors import Sensors
+from .sensors import NNOISE, Sensors, measure_into
 from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
 
 MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
@@ -100,6 +100,20 @@ def advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
         if t % att_div == 0:
             A.inner_step(fs, fp, S, P, W, mx, xm, sp, omega, wk)
         phys.rk4_step(x, omega, pv, v_wind, f_ext, tau_ext, dt, ws)
+
+
+@jit
+def advance_wind_measured_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta,
+                               noise, sig, v_wind, f_ext, tau_ext, dt, n, tick, att_div, pos_div,
+                               pos_dt, scratch, ws):
+    """:func:`advance_wind_into` with a sensor model: n steps one by one, the firmware flying on
+    the estimate ``xm``, into which each step's end state is read with that step's row of
+    ``noise`` (:meth:`sim.sensors.Sensors.draws`, ``sig`` its sigmas)."""
+    for k in range(n):
+        advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
+                          eta[k:k + 1], v_wind, f_ext, tau_ext, dt, 1, tick + k, att_div, pos_div,
+                          pos_dt, scratch, ws)
+        measure_into(x, noise[k], sig, xm)
 
 
 def child_seeds(seed, n=2):
@@ -229,6 +243,7 @@ class SimVehicle:
         self._xm = self._x.copy()
         self._xr = self._x
         self._measured_tick = None
+        self._estimate_outside = False
         self._fs = np.zeros(A.NFS)
         self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
         self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
@@ -239,6 +254,8 @@ class SimVehicle:
         self._sp[A.SP_ATT_VALID] = 1.0
         self._omega = np.zeros(4)
         self._wk = np.zeros(A.NWK)
+        self._scratch = np.empty(WIND_SCRATCH)
+        self._ws = np.empty((5, phys.NX))
         self._v_wind = np.zeros(3)
         self._f_ext = np.zeros(3)
         self._tau_ext = np.zeros(3)
@@ -332,6 +349,20 @@ class SimVehicle:
             packed = pack_wind(Wind())
         return packed, (self._v_wind, self._f_ext, self._tau_ext)
 
+    def kernel_sensors(self, ticks):
+        """(xm, noise, sigmas) for a caller that runs the next ``ticks`` physics steps on
+        :meth:`kernel_state` itself, step by step, reading each step's end state into ``xm`` with
+        :func:`sim.sensors.measure_into` (``noise`` row by row), as :meth:`step` does: ``xm`` is
+        the estimate the firmware flies on (the vehicle's own array, this tick's reading), the
+        noise is taken now from the sensor model's own stream (:meth:`sim.sensors.Sensors.draws`),
+        so it goes on where the vehicle's steps left it.  The sensor latency is the caller's to
+        model.  Without noise: (the true state itself, no rows, zero sigmas)."""
+        if self._estimate is None or not any(v > 0.0 for v in self._estimate.noise.values()):
+            return self._x, np.zeros((0, NNOISE)), np.zeros(4)
+        self._measure()
+        self._estimate_outside = True  # ran() takes the estimate as of its tick
+        return self._xm, self._estimate.draws(ticks), self._estimate.sigmas()
+
     @property
     def tick(self):
         """Physics steps since boot."""
@@ -343,6 +374,10 @@ class SimVehicle:
         self._tick += int(ticks)
         self._target_time = self._tick * self.physics_dt
         self._mode = "attitude"
+        if self._estimate_outside:  # kernel_sensors' estimate was read of every step
+            self._measured_tick = self._tick
+            self._xr = self._xm if self._report is None else self._report.measure(self.time,
+                                                                                  self._xm)
 
     def reported(self):
         """The state as the vehicle reports it: truth, or with a sensor model the firmware's
@@ -460,14 +495,29 @@ class SimVehicle:
         end = int(math.floor(self._target_time / self.physics_dt + 1e-6))
         fw = self.fw
         packed = self._packed
-        per_step = (self.wind is not None and packed is None) or self.sensors is not None
+        # a sensor model without report latency reads every step in the compiled loop, its noise
+        # drawn ahead for the steps up to the next position-loop tick
+        measured = packed is not None and self.sensors is not None and self._report is None
+        per_step = ((self.wind is not None and packed is None) or self.sensors is not None) \
+            and not measured
         while self._tick < end:
             tick = self._tick
-            if per_step:
+            if per_step or measured:
                 self._measure()
             if tick % fw.pos_div == 0:
                 self._outer()
             n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
+            if measured:
+                est = self._estimate
+                advance_wind_measured_into(
+                    self._x, self._xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp,
+                    self._omega, self._wk, self._pv, packed.params, packed.state,
+                    packed.normals(n), est.draws(n), est.sigmas(), self._v_wind, self._f_ext,
+                    self._tau_ext, self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt,
+                    self._scratch, self._ws)
+                self._tick += n
+                self._measured_tick = self._tick
+                continue
             if packed is not None:
                 xm = self._xm if self.sensors is not None else self._x
                 advance_wind(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx,

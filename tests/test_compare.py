@@ -140,13 +140,27 @@ def test_a_seed_independent_run_flies_once_and_its_record_is_what_every_seed_fli
     assert _key(flown) == _key(tiny_serial)
 
 
-def test_sensor_noise_is_refused_on_the_fast_path(tiny):
+def test_sensor_noise_flies_on_the_fast_path_and_depends_on_the_seed(tiny):
+    """A scenario with sensor noise runs in process (run_matrix and run_inprocess): it flies
+    another run than without noise, another for each seed, the same for the same seed, and
+    run_matrix flies each of its seeds."""
     noisy = experiment_from_text("noisy.yaml", TINY.read_text().replace(
         "    wind: thesis", "    wind: thesis\n    sim: {noise: true}"))
-    with pytest.raises(ValueError, match="thesis wind hover.*--via mavlink"):
-        C.run_matrix(noisy, workers=1, progress=False)
-    with pytest.raises(ValueError, match="over MAVLink"):
-        run_inprocess(noisy, 1, 0, 0)
+    quiet = run_inprocess(tiny, 1, 0, 0, keep_log=True)[1]
+    a = run_inprocess(noisy, 1, 0, 0, keep_log=True)[1]
+    again = run_inprocess(noisy, 1, 0, 0, keep_log=True)[1]
+    b = run_inprocess(noisy, 1, 0, 1, keep_log=True)[1]
+    assert np.array_equal(a, again, equal_nan=True)
+    for other in (quiet, b):
+        assert len(other) == len(a)
+        d = np.abs(a[:, L_POS:L_POS + 3] - other[:, L_POS:L_POS + 3]).max()
+        assert 1e-4 < d < 0.2  # centimetres of noise, not another flight
+    records, _, _ = C.run_matrix(noisy, workers=1, progress=False)
+    hover = [r for r in records if r["scenario"] == "thesis wind hover"]
+    assert len(hover) == len(noisy.controllers) * 2
+    assert not any("same_as_seed" in r or r.get("seed_independent") for r in hover)
+    pd = {r["seed"]: r["rms_error_m"] for r in hover if r["controller"] == "PD"}
+    assert pd[0] != pd[1]
 
 
 # --- scale-out ----------------------------------------------------------------------------------
