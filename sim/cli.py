@@ -7,7 +7,7 @@ import signal
 import sys
 import threading
 
-from .link_flags import add_link_arguments, link_args, link_from_args  # noqa: F401
+from .link_flags import add_link_arguments, link_from_args
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
 from .sensors import TYPICAL_NOISE
 from .server import SitlServer
