@@ -103,9 +103,37 @@ def advance_wind_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate,
 
 
 def child_seeds(seed, n=2):
-    """Independent integer seeds for the random parts of one vehicle (wind, sensors)."""
+    """Independent integer seeds for the random parts of one vehicle: wind, sensors and (the
+    third) the initial heading.  Child k is the same whatever ``n``, so asking for more
+    streams leaves the first ones' draws as they were."""
     ss = np.random.SeedSequence(seed)
     return [int(c.generate_state(1)[0]) for c in ss.spawn(n)]
+
+
+#: ``yaw`` (rad) that asks :class:`SimVehicle` for an initial heading drawn from its seed
+RANDOM_HEADING = math.nan
+
+
+def initial_heading(yaw, seed):
+    """The initial heading (rad) a vehicle with ``seed`` starts at for ``yaw``: ``yaw`` itself,
+    or, for :data:`RANDOM_HEADING` (NaN), one drawn uniformly in [-pi, pi) from the seed's own
+    stream (the third of :func:`child_seeds`), so the wind's and the sensors' draws do not
+    change.  The in-process path and the MAVLink server (``--heading random``) both call this."""
+    yaw = float(yaw)
+    if not math.isnan(yaw):
+        return yaw
+    rng = np.random.default_rng(child_seeds(seed, 3)[2])
+    return float(rng.uniform(-math.pi, math.pi))
+
+
+def parse_heading(text):
+    """Degrees from ``--heading DEG`` or ``random`` (NaN: :data:`RANDOM_HEADING` once in rad)."""
+    if str(text).strip().lower() == "random":
+        return math.nan
+    deg = float(text)
+    if not math.isfinite(deg):
+        raise ValueError(f"heading must be a finite number of degrees or 'random' (got {text!r})")
+    return deg
 
 
 def resolve_vehicle(vehicle):
@@ -208,7 +236,8 @@ class SimVehicle:
     motor outputs (PX4's THR_MDL_FAC, whose default 0 this is; ArduPilot's MOT_THST_EXPO); it
     matters only against a vehicle file that gives the motors' real ``motor_thrust_curve``.
     ``position_options``: keywords of :class:`sim.firmware.position.Navigator` (gains, speeds,
-    tilt limit).  ``position``/``yaw``: start pose; above the ground the vehicle starts flying
+    tilt limit).  ``position``/``yaw``: start pose (``yaw`` NaN, :data:`RANDOM_HEADING`: a
+    heading drawn from the seed, :func:`initial_heading`); above the ground the vehicle starts flying
     with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
     ``land()`` touches down, disarm this long after (None: stay armed at idle).
     """
@@ -249,7 +278,8 @@ class SimVehicle:
         self._pv = vp.pack()
         pos = np.asarray(position, dtype=float)
         airborne = pos[2] < 0.0
-        self._x = phys.initial_state(pos, yaw, vp.hover_omega if airborne else 0.0)
+        self.initial_yaw = initial_heading(yaw, seed)
+        self._x = phys.initial_state(pos, self.initial_yaw, vp.hover_omega if airborne else 0.0)
         self._xm = self._x.copy()
         self._xr = self._x
         self._measured_tick = None
