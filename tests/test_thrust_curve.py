@@ -350,3 +350,31 @@ def test_the_fast_path_and_the_wire_fly_a_curved_vehicle_from_the_same_random_he
     # both started at the seed's heading (the first sample, on the ground)
     assert log[0, L_YAW] == pytest.approx(initial_heading(math.nan, seed), abs=1e-6)
     assert rec_fast["rms_error_m"] < 0.2  # it flew: the controller had the real hover thrust
+
+
+def test_a_fleet_vehicle_with_its_own_thrust_model_steps_on_it():
+    """mavadrc sitl --count: a PARAM_SET of THR_MDL_FAC reaches one vehicle of the fleet; the
+    fleet's batch step (which shares the first vehicle's firmware parameters) leaves that one
+    to step alone, so each flies as a lone vehicle with its factor, bit for bit."""
+    from sim.fleet import VehicleRows
+
+    vp = curved(0.65)
+
+    def make():
+        return [SimVehicle(vp, seed=k, position=(0.0, 0.0, -10.0)) for k in range(3)]
+
+    alone, rows_of = make(), make()
+    rows = VehicleRows(rows_of)
+    for group in (alone, rows_of):
+        group[1].set_thrust_model_factor(0.65)
+        for v in group:
+            v.arm()
+            v.set_attitude_target([1.0, 0.0, 0.0, 0.0], 0.6)
+    for _ in range(200):
+        for v in alone:
+            v.step(0.002)
+        rows.step(0.002)
+    for a, b in zip(alone, rows_of):
+        assert np.array_equal(a.state, b.state)
+    assert rows.batched > 0
+    assert rows_of[1].state[5] < rows_of[0].state[5] - 0.5  # 0.6 climbs with the right model
