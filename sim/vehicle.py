@@ -237,8 +237,8 @@ class SimVehicle:
     matters only against a vehicle file that gives the motors' real ``motor_thrust_curve``.
     ``position_options``: keywords of :class:`sim.firmware.position.Navigator` (gains, speeds,
     tilt limit).  ``position``/``yaw``: start pose (``yaw`` NaN, :data:`RANDOM_HEADING`: a
-    heading drawn from the seed, :func:`initial_heading`); above the ground the vehicle starts flying
-    with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
+    heading drawn from the seed, :func:`initial_heading`); above the ground the vehicle starts
+    flying with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
     ``land()`` touches down, disarm this long after (None: stay armed at idle).
     """
 

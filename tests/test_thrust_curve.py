@@ -34,7 +34,7 @@ from sim.firmware.mixer import thrust_curve, thrust_curve_inverse  # noqa: E402
 from sim.params import load_vehicle  # noqa: E402
 from sim.vehicle import SimVehicle, child_seeds, initial_heading  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
-from tests.sitl_helpers import Client, Lockstep, start_vehicle  # noqa: E402
+from sitl_helpers import Client, Lockstep, start_vehicle  # noqa: E402
 
 X500 = load_vehicle("x500")
 GUIDED_NOGPS = 20
@@ -46,7 +46,8 @@ def curved(k, base=X500):
 
 def vehicle_file(tmp_path, k, name="x500_curve"):
     """configs/vehicles/x500.yaml with the motors' real curve k."""
-    text = (Path(__file__).resolve().parent.parent / "configs" / "vehicles" / "x500.yaml").read_text()
+    text = (Path(__file__).resolve().parent.parent / "configs" / "vehicles" / "x500.yaml") \
+        .read_text()
     path = tmp_path / f"{name}.yaml"
     path.write_text(text.replace("name: x500", f"name: {name}")
                     + f"motor_thrust_curve: {k}\n")
