@@ -11,6 +11,7 @@ that, then stops the vehicle) and writes its output to the flight's ``vehicle.lo
 
 import gc
 import logging
+import math
 import os
 import signal
 import socket
@@ -69,7 +70,9 @@ class EmbeddedVehicle:
             cmd += ["--noise"]
         if mission.sensor_latency_s:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
-        if mission.heading_deg:
+        if math.isnan(mission.heading_deg):
+            cmd += ["--heading", "random"]  # drawn from --seed, as the fast path draws it
+        elif mission.heading_deg:
             cmd += ["--heading", str(mission.heading_deg)]
         if signing_key is not None:
             key_path = workdir / "signing.key"

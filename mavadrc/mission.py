@@ -83,7 +83,9 @@ class Mission:
     noise: bool = False
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
     link: object = None  # sim.link_model.LinkModel between the bundled vehicle and the companion
-    heading_deg: float = 0.0  # the bundled vehicle's initial heading
+    #: the bundled vehicle's initial heading (deg); NaN (``heading_deg: random``): drawn from
+    #: the run's seed (:func:`sim.vehicle.initial_heading`), the same on both paths
+    heading_deg: float = 0.0
     settle_s: float = 0.0  # errors are also reported after this mission time
     out: str = "runs"
     transit_speed: float = 1.0
@@ -432,6 +434,17 @@ def check_limits(m, top, segs):
             where.error(None, f"the reference {text} at {tk:.1f} s ({name}: {at})")
 
 
+def _bundled_hover(vp, autopilot):
+    """The hover thrust of a bundled vehicle whose motors have their own thrust curve, as its
+    autopilot (linearising with its default THR_MDL_FAC / MOT_THST_EXPO) reports it."""
+    from sim.firmware.mixer import hover_command
+    from sim.personality import personality
+
+    ap = personality(autopilot)
+    default = next(d for name, d, _ in ap.params if name == ap.thrust_model_param)
+    return hover_command(vp, vp.max_thrust, ap.thrust_model_factor(default))
+
+
 def mission_from_section(top, source, text, default_name="mission", require_land=True,
                          controller=True):
     """A :class:`Mission` from a YAML section (a mission file, or an experiment's scenario).
@@ -502,8 +515,15 @@ def mission_from_section(top, source, text, default_name="mission", require_land
             from sim.link_model import link_from_section
             link = link_from_section(s.section("link"))
             m.link = None if link.perfect else link
-        m.heading_deg = s.number("heading_deg", 0.0, ge=-360.0, le=360.0)
+        if isinstance(s.raw("heading_deg", None), str):
+            if s.string("heading_deg").strip().lower() != "random":
+                s.error("heading_deg", "must be degrees or 'random' (drawn from the seed)")
+            m.heading_deg = math.nan
+        else:
+            m.heading_deg = s.number("heading_deg", 0.0, ge=-360.0, le=360.0)
         s.finish()
+    if m.vehicle is not None and vp.motor_thrust_curve is not None:
+        m.hover_thrust = _bundled_hover(vp, m.autopilot)
     m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()
     if top.has("logging"):
         lg = top.section("logging")

@@ -43,8 +43,9 @@ def add_arguments(p):
                         "blackouts), as a mission's sim: {link: ...}")
     p.add_argument("--home", default="47.397742,8.545594,488.0",
                    help="home LAT,LON,ALT (deg, deg, m AMSL)")
-    p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
-                   help="initial heading (deg from north, clockwise; default 0)")
+    p.add_argument("--heading", type=_heading, default=0.0, metavar="DEG",
+                   help="initial heading (deg from north, clockwise; default 0), or 'random': "
+                        "drawn from the seed (each vehicle of --count its own)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="initial value of one of the autopilot's parameters, e.g. "
                         "COM_SPOOLUP_TIME=0 (repeatable)")
@@ -164,6 +165,16 @@ def make_server(args):
     return make_servers(args)[0]
 
 
+def _heading(text):
+    """--heading: degrees, or 'random' (NaN: drawn from the vehicle's seed)."""
+    from .vehicle import parse_heading
+
+    try:
+        return parse_heading(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be degrees or 'random' (got {text!r})") from None
+
+
 def make_servers(args):
     """One SitlServer per vehicle of --count (instance + k, seed + k, ports + k), not started."""
     from .vehicle import SimVehicle
@@ -174,7 +185,7 @@ def make_servers(args):
     if count > 1 and args.lockstep:
         raise SystemExit("mavadrc sitl: --count serves its vehicles in real time only; for "
                          "lockstep start one process per vehicle (--instance N)")
-    if not math.isfinite(args.heading):
+    if math.isinf(args.heading):
         raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
     link, link_on, bandwidth = link_from_args(args)
@@ -241,6 +252,9 @@ def run(args):
           flush=True)
     if first.link_model is not None or any(link.line for link in first.links):
         print(f"mavadrc sitl: link {describe_link(first)}", flush=True)
+    if math.isnan(args.heading):
+        degs = ", ".join(f"{math.degrees(s.vehicle.initial_yaw):.1f}" for s in servers)
+        print(f"mavadrc sitl: random initial heading from the seed: {degs} deg", flush=True)
     if args.duration is not None:
         timer = threading.Timer(args.duration, server.stop_soon)
         timer.daemon = True

@@ -97,15 +97,17 @@ class VehicleRows:
         if not (math.isfinite(dt) and dt >= 0.0):
             raise ValueError(f"dt must be >= 0 (got {dt!r})")
         groups = {}
+        fw = self._fw
         for i, v in enumerate(self.vehicles):
-            if not self.batchable(v):
+            # a vehicle whose THR_MDL_FAC / MOT_THST_EXPO was set apart from the first's has
+            # firmware parameters of its own: it steps on them, alone
+            if not self.batchable(v) or v.fw.thrust_model_factor != fw.thrust_model_factor:
                 v.step(dt)
                 continue
             v._target_time += float(dt)
             end = int(math.floor(v._target_time / v.physics_dt + 1e-6))
             if end > v._tick:
                 groups.setdefault((v._tick, end), []).append(i)
-        fw = self._fw
         X, FS, S, W, SP, OMEGA, WK, V, F, T = self.arrays
         for (tick, end), rows in groups.items():
             advance_rows(np.array(rows, dtype=np.int64), X, FS, fw.fp, S, fw.P, W, fw.mx, SP,

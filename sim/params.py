@@ -87,12 +87,20 @@ class VehicleParams:
     #: the firmware's default for fast motors); a vehicle whose autopilot answers an attitude
     #: command slowly, as real ones do, gets a lower one
     attitude_bandwidth: Any = None
+    #: the motors' real thrust curve: rotor thrust, as a fraction of its range, is
+    #: ``k u^2 + (1 - k) u`` of the normalized motor output u (k in [-1, 1]; 0: thrust linear in
+    #: the output, 1: rotor speed linear in it).  This is what an autopilot's THR_MDL_FAC (PX4,
+    #: default 0) or MOT_THST_EXPO (ArduPilot, default 0.65) is set to match.  None: the motors
+    #: have whatever curve the autopilot assumes, so thrust is exactly linear in the command
+    motor_thrust_curve: Any = None
 
     def __post_init__(self) -> None:
         self.inertia = np.array(self.inertia, dtype=float).reshape(3)
         self.drag_linear = np.broadcast_to(np.asarray(self.drag_linear, dtype=float), 3).copy()
         self.drag_quadratic = np.broadcast_to(
             np.asarray(self.drag_quadratic, dtype=float), 3).copy()
+        if self.motor_thrust_curve is not None:
+            self.motor_thrust_curve = float(self.motor_thrust_curve)
         if self.attitude_bandwidth is not None:
             self.attitude_bandwidth = np.broadcast_to(
                 np.asarray(self.attitude_bandwidth, dtype=float), 3).copy()
@@ -191,6 +199,10 @@ def physical_problems(v: dict[str, Any]) -> list[tuple[str, str]]:
     omin_ok = positive("omega_min", strict=False)
     for name in ("drag_linear", "drag_quadratic", "rotor_drag", "rotor_inertia"):
         positive(name, strict=False)
+    k = v.get("motor_thrust_curve")
+    if k is not None and not (math.isfinite(float(k)) and -1.0 <= float(k) <= 1.0):
+        out.append(("motor_thrust_curve", f"must be in [-1, 1] (got {k}): outside it the "
+                                          "thrust is not monotonic in the motor output"))
     if v["layout"] not in LAYOUTS:
         out.append(("layout", f"must be one of {', '.join(LAYOUTS)} (got {v['layout']!r})"))
     if omin_ok and ok and v["omega_min"] >= v["omega_max"]:
@@ -235,6 +247,7 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
         "description": sec.string("description", ""),
         "attitude_bandwidth": (sec.vector("attitude_bandwidth", 3, scalar_ok=True, gt=0)
                                if sec.has("attitude_bandwidth") else None),
+        "motor_thrust_curve": sec.number("motor_thrust_curve", None, ge=-1.0, le=1.0),
     }
     sec.finish()
     for name, reason in physical_problems(values):

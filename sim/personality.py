@@ -323,6 +323,8 @@ class Personality:
     mode_aliases: dict = field(default_factory=dict)
     sysid_param: str = "MAV_SYS_ID"
     hover_param: str = "MPC_THR_HOVER"
+    #: parameter holding the thrust curve factor the autopilot linearises its motor outputs with
+    thrust_model_param: str = "THR_MDL_FAC"
     #: a heartbeat goes out at once when the mode changes (besides the 1 Hz one)
     heartbeat_on_mode_change: bool = False
     #: parameter (s) holding the motors at idle after arming; setpoints meanwhile do nothing
@@ -440,6 +442,11 @@ class Personality:
         """(mode name, or 'DISARM' / 'TERMINATE', the failsafe action's name)."""
         return None
 
+    def thrust_model_factor(self, value):
+        """The thrust curve factor (rotor thrust fraction = f u^2 + (1 - f) u of motor output u)
+        the autopilot really applies for a value of :attr:`thrust_model_param`."""
+        raise NotImplementedError
+
 
 #: PX4's publication rates of the topics behind its streams (Hz): vehicle_local_position,
 #: vehicle_global_position and vehicle_odometry come from an EKF2 update, one each
@@ -547,6 +554,13 @@ class PX4(Personality):
             return self._OBL[action]
         return self._RCL.get(int(params["NAV_RCL_ACT"][0]), ("AUTO.RTL", "RTL"))
 
+    def thrust_model_factor(self, value):
+        """THR_MDL_FAC (src/lib/mixer_module/motor_params.c, default 0, range 0..1):
+        FunctionMotors::updateValues inverts the curve only for 0 < factor <= 1 and leaves the
+        outputs linear in thrust otherwise."""
+        v = float(value)
+        return v if 1.2e-7 < v <= 1.0 else 0.0
+
 
 class ArduCopter(Personality):
     def command_mode(self, p2, p3):
@@ -603,6 +617,13 @@ class ArduCopter(Personality):
     def disarmed_text(self, reason):
         return "Disarming motors"
 
+    def thrust_model_factor(self, value):
+        """MOT_THST_EXPO (AP_MotorsMulticopter, default 0.65 for ArduCopter, range -1..1):
+        Thrust_Linearization::apply_thrust_curve_and_volt_scaling constrains it to -1..1.  The
+        outputs it makes span MOT_SPIN_MIN..MOT_SPIN_MAX, which the bundled vehicle takes as
+        set up to its motors' thrust range (omega_min..omega_max)."""
+        return min(max(float(value), -1.0), 1.0)
+
     def interval_refused_text(self, msgid):
         # GCS_MAVLINK::set_message_interval, SITL builds
         return f"No ap_message for mavlink id ({msgid})"
@@ -658,6 +679,9 @@ def px4():
         ("COM_DISARM_PRFLT", 10.0, REAL),
         ("COM_SPOOLUP_TIME", 1.0, REAL),  # motors at idle after arming (position control)
         ("MPC_THR_HOVER", 0.5, REAL),
+        # thrust model: rel_thrust = f out^2 + (1 - f) out, inverted on the motor outputs
+        # (mixer_module/motor_params.c; gz x500 airframes leave the default 0)
+        ("THR_MDL_FAC", 0.0, REAL),
         ("MPC_THR_MIN", 0.12, REAL),  # land detector thresholds
         ("MPC_MANTHR_MIN", 0.08, REAL),
         ("LNDMC_Z_VEL_MAX", 0.25, REAL),
@@ -735,6 +759,8 @@ def ardupilot():
         ("GUID_OPTIONS", 0, INT),  # bit 3 (8): SET_ATTITUDE_TARGET thrust is thrust, not climb rate
         ("GUID_TIMEOUT", 3.0, REAL),
         ("MOT_THST_HOVER", 0.5, REAL),
+        # thrust curve the motor outputs are linearised with (AP_MOTORS_THST_EXPO_DEFAULT)
+        ("MOT_THST_EXPO", 0.65, REAL),
         ("PILOT_SPEED_UP", 250, INT),  # cm/s
         ("PILOT_SPEED_DN", 150, INT),  # cm/s
         ("LAND_SPEED", 50, INT),  # cm/s
@@ -750,6 +776,7 @@ def ardupilot():
                       params, _CAPS | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST, False,
                       (4 << 24) | (6 << 16) | (0 << 8) | 255,
                       sysid_param="SYSID_THISMAV", hover_param="MOT_THST_HOVER",
+                      thrust_model_param="MOT_THST_EXPO",
                       # Copter::set_mode ends with gcs().send_message(MSG_HEARTBEAT); arming
                       # and disarming send none
                       heartbeat_on_mode_change=True,

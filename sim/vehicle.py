@@ -29,7 +29,7 @@ from mavadrc.control.rotations import level_quat, quat_to_euler
 from . import physics as phys
 from .firmware import attitude as A
 from .firmware import position as PL
-from .firmware.mixer import Mixer
+from .firmware.mixer import Mixer, curve_mismatch, hover_command
 from .params import VehicleParams, load_vehicle
 from .sensors import NNOISE, Sensors, measure_into
 from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
@@ -117,9 +117,37 @@ def advance_wind_measured_into(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp
 
 
 def child_seeds(seed, n=2):
-    """Independent integer seeds for the random parts of one vehicle (wind, sensors)."""
+    """Independent integer seeds for the random parts of one vehicle: wind, sensors and (the
+    third) the initial heading.  Child k is the same whatever ``n``, so asking for more
+    streams leaves the first ones' draws as they were."""
     ss = np.random.SeedSequence(seed)
     return [int(c.generate_state(1)[0]) for c in ss.spawn(n)]
+
+
+#: ``yaw`` (rad) that asks :class:`SimVehicle` for an initial heading drawn from its seed
+RANDOM_HEADING = math.nan
+
+
+def initial_heading(yaw, seed):
+    """The initial heading (rad) a vehicle with ``seed`` starts at for ``yaw``: ``yaw`` itself,
+    or, for :data:`RANDOM_HEADING` (NaN), one drawn uniformly in [-pi, pi) from the seed's own
+    stream (the third of :func:`child_seeds`), so the wind's and the sensors' draws do not
+    change.  The in-process path and the MAVLink server (``--heading random``) both call this."""
+    yaw = float(yaw)
+    if not math.isnan(yaw):
+        return yaw
+    rng = np.random.default_rng(child_seeds(seed, 3)[2])
+    return float(rng.uniform(-math.pi, math.pi))
+
+
+def parse_heading(text):
+    """Degrees from ``--heading DEG`` or ``random`` (NaN: :data:`RANDOM_HEADING` once in rad)."""
+    if str(text).strip().lower() == "random":
+        return math.nan
+    deg = float(text)
+    if not math.isfinite(deg):
+        raise ValueError(f"heading must be a finite number of degrees or 'random' (got {text!r})")
+    return deg
 
 
 def resolve_vehicle(vehicle):
@@ -154,7 +182,8 @@ class Firmware:
 
     def __init__(self, vp, *, attitude_controller, physics_dt, attitude_rate_hz,
                  position_rate_hz, max_thrust, hover_thrust, airmode, attitude_gains,
-                 land_thrust=0.6, land_vz=0.25, land_vxy=1.0, land_time=0.5):
+                 land_thrust=0.6, land_vz=0.25, land_vxy=1.0, land_time=0.5,
+                 thrust_model_factor=0.0):
         self.att_div = divider(attitude_rate_hz, physics_dt, "attitude_rate_hz")
         self.pos_div = divider(position_rate_hz, physics_dt, "position_rate_hz")
         if max_thrust is not None and hover_thrust is not None:
@@ -171,18 +200,38 @@ class Firmware:
         else:
             scale = vp.max_thrust
         self.thrust_scale = scale
-        self.hover_thrust = vp.weight / scale
+        self.vp = vp
         self.mixer = Mixer(vp, airmode=airmode)
         self.fp, self.P = A.firmware_params(
             vp, attitude_controller, h=physics_dt * self.att_div, thrust_scale=scale,
             mixer=self.mixer, **dict(attitude_gains or {}))
+        self.land_thrust = land_thrust
         ld = self.fp[A.FP_LD:A.FP_LD + PL.NLD]
-        ld[PL.LD_THRUST] = land_thrust * self.hover_thrust
         ld[PL.LD_VZ] = land_vz
         ld[PL.LD_VXY] = land_vxy
         ld[PL.LD_TIME] = land_time
+        self.set_thrust_model(thrust_model_factor)
         self.mx = self.mixer.params
         self.pos_dt = physics_dt * self.pos_div
+
+    def set_thrust_model(self, factor):
+        """The thrust curve factor the autopilot linearises its motor outputs with (PX4's
+        THR_MDL_FAC, ArduPilot's MOT_THST_EXPO; in [-1, 1]); sets the hover thrust and the land
+        detector's threshold that follow from it and the vehicle's real curve."""
+        k = float(factor)
+        if not (math.isfinite(k) and -1.0 <= k <= 1.0):
+            raise ValueError(f"thrust model factor must be in [-1, 1] (got {factor!r})")
+        vp = self.vp
+        self.thrust_model_factor = k
+        on = curve_mismatch(vp, k)
+        self.fp[A.FP_CURVE] = 1.0 if on else 0.0
+        self.fp[A.FP_CURVE_ASSUMED] = k
+        self.fp[A.FP_CURVE_TRUE] = vp.motor_thrust_curve if on else k
+        self.hover_thrust = hover_command(vp, self.thrust_scale, k)
+        if not 0.0 < self.hover_thrust < 1.0:
+            raise ValueError(f"{vp.name} cannot hover with thrust 1.0 = {self.thrust_scale:.4g} "
+                             f"N and a thrust model factor of {k:g}")
+        self.fp[A.FP_LD + PL.LD_THRUST] = self.land_thrust * self.hover_thrust
 
 
 class SimVehicle:
@@ -197,9 +246,13 @@ class SimVehicle:
     'px4', 'ladrc', 'adrc' or 'pd'; ``attitude_gains`` override its gains (see
     :func:`sim.firmware.attitude.firmware_params`).  ``max_thrust`` (N) or ``hover_thrust``
     (normalized) set what normalized thrust 1.0 means (default: the rotors' maximum).
+    ``thrust_model_factor``: the thrust curve the autopilot assumes when it turns thrust into
+    motor outputs (PX4's THR_MDL_FAC, whose default 0 this is; ArduPilot's MOT_THST_EXPO); it
+    matters only against a vehicle file that gives the motors' real ``motor_thrust_curve``.
     ``position_options``: keywords of :class:`sim.firmware.position.Navigator` (gains, speeds,
-    tilt limit).  ``position``/``yaw``: start pose; above the ground the vehicle starts flying
-    with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
+    tilt limit).  ``position``/``yaw``: start pose (``yaw`` NaN, :data:`RANDOM_HEADING`: a
+    heading drawn from the seed, :func:`initial_heading`); above the ground the vehicle starts
+    flying with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
     ``land()`` touches down, disarm this long after (None: stay armed at idle).
     """
 
@@ -207,7 +260,7 @@ class SimVehicle:
                  attitude_controller="px4", physics_dt=0.001, attitude_rate_hz=None,
                  position_rate_hz=100.0, max_thrust=None, hover_thrust=None, airmode=True,
                  attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
-                 auto_disarm_s=2.0):
+                 auto_disarm_s=2.0, thrust_model_factor=0.0):
         self.params = resolve_vehicle(vehicle)
         vp = self.params
         self.physics_dt = float(physics_dt)
@@ -231,7 +284,7 @@ class SimVehicle:
                            physics_dt=self.physics_dt, attitude_rate_hz=attitude_rate_hz,
                            position_rate_hz=position_rate_hz, max_thrust=max_thrust,
                            hover_thrust=hover_thrust, airmode=airmode,
-                           attitude_gains=attitude_gains)
+                           attitude_gains=attitude_gains, thrust_model_factor=thrust_model_factor)
         self.attitude_controller = attitude_controller
         self.nav = PL.Navigator(h=self.fw.pos_dt, hover_thrust=self.fw.hover_thrust,
                                 **dict(position_options or {}))
@@ -239,7 +292,8 @@ class SimVehicle:
         self._pv = vp.pack()
         pos = np.asarray(position, dtype=float)
         airborne = pos[2] < 0.0
-        self._x = phys.initial_state(pos, yaw, vp.hover_omega if airborne else 0.0)
+        self.initial_yaw = initial_heading(yaw, seed)
+        self._x = phys.initial_state(pos, self.initial_yaw, vp.hover_omega if airborne else 0.0)
         self._xm = self._x.copy()
         self._xr = self._x
         self._measured_tick = None
@@ -302,8 +356,25 @@ class SimVehicle:
 
     @property
     def hover_thrust(self):
-        """Normalized thrust that holds a hover (weight / the thrust that 1.0 means)."""
+        """Normalized thrust that holds a hover: weight / the thrust that 1.0 means, through the
+        motors' real thrust curve when it differs from the autopilot's assumption."""
         return self.fw.hover_thrust
+
+    @property
+    def thrust_model_factor(self):
+        """The thrust curve factor the autopilot linearises with (PX4's THR_MDL_FAC, ArduPilot's
+        MOT_THST_EXPO); see :meth:`set_thrust_model_factor`."""
+        return self.fw.thrust_model_factor
+
+    def set_thrust_model_factor(self, factor):
+        """Make the autopilot linearise its motor outputs with thrust curve factor ``factor``
+        (rotor thrust fraction = f u^2 + (1 - f) u of motor output u, as PX4's THR_MDL_FAC,
+        default 0, and ArduPilot's MOT_THST_EXPO, default 0.65, assume).  Against a vehicle
+        whose ``motor_thrust_curve`` differs, thrust becomes nonlinear in the command and the
+        hover thrust moves: :attr:`hover_thrust`, the land detector and the position loop
+        follow at once."""
+        self.fw.set_thrust_model(factor)
+        self.nav.M[G.M_TPA] = self.fw.hover_thrust / self.nav.M[G.M_G]
 
     @property
     def rotor_commands(self):
@@ -592,8 +663,8 @@ def response_time_constants(vehicle="crazyflie", attitude_controller="px4", hove
     Deterministic; cached per vehicle and attitude controller.
     """
     vp = resolve_vehicle(vehicle)
-    key = (repr(vp.pack().tolist()), repr(vp.attitude_bandwidth), attitude_controller,
-           hover_thrust)
+    key = (repr(vp.pack().tolist()), repr(vp.attitude_bandwidth), vp.motor_thrust_curve,
+           attitude_controller, hover_thrust)
     if key in _LAGS:
         return _LAGS[key]
     out = []

@@ -24,7 +24,13 @@ A setpoint that ignores the attitude (body rates only) goes to the rate PID what
 the Euler channels have no rate-only form.
 
 Thrust: normalized collective thrust t in [0, 1] is applied as ``t * thrust_scale`` newtons, as
-PX4 applies SET_ATTITUDE_TARGET thrust raw (1.0 = the configured maximum thrust).
+PX4 applies SET_ATTITUDE_TARGET thrust raw (1.0 = the configured maximum thrust).  That is the
+autopilot's belief: it turns each rotor's share into a motor output by inverting its own thrust
+curve (PX4's THR_MDL_FAC, ArduPilot's MOT_THST_EXPO: thrust fraction = k u^2 + (1 - k) u of output
+u), and the motors answer with their own curve (the vehicle file's ``motor_thrust_curve``).  When
+the two factors differ (FP_CURVE), the rotor speeds the kernel returns are the motors' real ones,
+so thrust is no longer linear in the command; when they agree, or the vehicle gives no curve,
+the commands pass through untouched.
 
 Gains of the PX4-like loop come from one bandwidth per axis, ``lam``, placed against the motor
 time constant tau_m (the plant from torque command to angle is 1/(I s^2 (tau_m s + 1))): with
@@ -44,7 +50,7 @@ from mavadrc.control._jit import jit
 from mavadrc.control.attitude import attitude_update
 from mavadrc.control.rotations import quat_to_euler
 
-from .mixer import MX_A, NWK_MIX, mix
+from .mixer import MX_A, NWK_MIX, apply_motor_curve, mix
 
 KINDS = ("px4", "ladrc", "adrc", "pd")
 KIND_PX4 = 0.0
@@ -67,7 +73,10 @@ FP_MOTOR_UP = 30  # motor model: fraction of the gap closed per step when speedi
 FP_MOTOR_DOWN = 31  # ... when slowing down
 FP_OBS_MODEL = 32  # 1.0: Euler-channel observers get the motor model's torque, 0.0: the command
 FP_JR = 33  # 4: rotor inertia times spin direction (kg m^2): reaction torque of rotor acceleration
-NFP = 37
+FP_CURVE = 37  # 1.0: the motors' thrust curve differs from the one the autopilot linearises with
+FP_CURVE_ASSUMED = 38  # the autopilot's thrust curve factor (THR_MDL_FAC / MOT_THST_EXPO)
+FP_CURVE_TRUE = 39  # the vehicle's motors' real factor (the vehicle file's motor_thrust_curve)
+NFP = 40
 
 # firmware state vector
 FS_ARMED = 0
@@ -299,6 +308,10 @@ def inner_step(fs, fp, S, P, W, mx, x, sp, omega, wk):
     mix(mx, t, tau[0], tau[1], tau[2], omega, w, wk[WK_MIX:WK_MIX + NWK_MIX])
     fs[FS_REQ] = t
     motor_model(fs, fp, mx, omega, model, wk[WK_W2:WK_W2 + 4])
+    if fp[FP_CURVE] != 0.0:
+        # the autopilot's outputs through motors whose curve it does not know: the firmware's
+        # own model (and so the observers and the reported wrench) keeps its belief
+        apply_motor_curve(mx, fp[FP_CURVE_ASSUMED], fp[FP_CURVE_TRUE], omega)
     for i in range(3):
         fs[FS_REQ + 1 + i] = tau[i]
         # observers see the torque really applied: the mixer's output, through the motor model

@@ -145,6 +145,63 @@ def mix(mx, thrust, tx, ty, tz, omega, wrench, wk):
     return k_rp
 
 
+@jit
+def thrust_curve(k, u):
+    """Rotor thrust as a fraction of its range at normalized motor output ``u`` in [0, 1]:
+    ``k u^2 + (1 - k) u``, the form of PX4's THR_MDL_FAC and ArduPilot's MOT_THST_EXPO
+    (k = 0: thrust linear in the output; k = 1: rotor speed linear in it, thrust quadratic).
+    Monotonic on [0, 1] for k in [-1, 1]."""
+    return u * (k * u + (1.0 - k))
+
+
+@jit
+def thrust_curve_inverse(k, f):
+    """The motor output u in [0, 1] whose thrust fraction under :func:`thrust_curve` is ``f``:
+    the root of ``k u^2 + (1 - k) u = f``, written so that it holds at k = 0 and near it."""
+    if f <= 0.0:
+        return 0.0
+    if f >= 1.0:
+        return 1.0
+    b = 1.0 - k
+    return 2.0 * f / (b + math.sqrt(b * b + 4.0 * k * f))
+
+
+@jit
+def apply_motor_curve(mx, assumed, true_k, omega):
+    """Rotor speeds (rad/s, in place) that motors with thrust curve factor ``true_k`` reach for
+    the commands ``omega`` of an autopilot that linearises with factor ``assumed``.
+
+    Each command's thrust fraction f = (omega^2 - omega_min^2) / (omega_max^2 - omega_min^2) is
+    turned into the motor output u the autopilot believes gives it (inverse of its curve), and
+    the motor makes thrust fraction thrust_curve(true_k, u) of that output.  Equal factors give
+    back the commands (to rounding)."""
+    lo = mx[MX_LO]
+    span = mx[MX_HI] - lo
+    for i in range(4):
+        f = (omega[i] * omega[i] - lo) / span
+        u = thrust_curve_inverse(assumed, f)
+        omega[i] = math.sqrt(lo + span * thrust_curve(true_k, u))
+
+
+def curve_mismatch(vehicle, assumed):
+    """Whether the vehicle's motors' thrust curve differs from the autopilot's assumption."""
+    k = vehicle.motor_thrust_curve
+    return k is not None and float(k) != float(assumed)
+
+
+def hover_command(vehicle, thrust_scale, assumed):
+    """Normalized collective thrust that holds a level hover: ``thrust_scale`` N per unit as
+    the autopilot believes, linearised with its factor ``assumed``, through the vehicle's real
+    motor curve (``motor_thrust_curve``; None or equal: weight / thrust_scale)."""
+    if not curve_mismatch(vehicle, assumed):
+        return vehicle.weight / thrust_scale
+    lo = vehicle.omega_min ** 2
+    span = vehicle.omega_max ** 2 - lo
+    real = (vehicle.weight / (4.0 * vehicle.k_f) - lo) / span  # each rotor's share, as it is
+    believed = thrust_curve(float(assumed), thrust_curve_inverse(vehicle.motor_thrust_curve, real))
+    return 4.0 * vehicle.k_f * (lo + span * believed) / thrust_scale
+
+
 def mixer_params(allocation, omega_min, omega_max, airmode=True):
     """Mixer parameter vector from the (4, 4) allocation matrix and the rotor speed range."""
     A = np.asarray(allocation, dtype=np.float64)

@@ -2,7 +2,10 @@
 PARAM_SET, each answered with PARAM_VALUE (name, value, type, count, index).
 
 The set is the personality's (:mod:`sim.personality`), with the system id and the vehicle's
-real hover thrust filled in.  An INT32 travels as PX4 sends it, its bytes in the float
+real hover thrust filled in.  The thrust curve parameter (PX4's THR_MDL_FAC, ArduPilot's
+MOT_THST_EXPO) is what the vehicle's firmware linearises its motor outputs with: set (at start
+or with PARAM_SET), it moves the hover point of a vehicle whose motors have another curve, and
+the hover parameter (MPC_THR_HOVER / MOT_THST_HOVER) is set to the new one.  An INT32 travels as PX4 sends it, its bytes in the float
 (PARAM_ENCODE_BYTEWISE), or as ArduPilot does, cast to a float (PARAM_ENCODE_C_CAST).  The
 SIM_WIND_* parameters are the ground station's wind: setting one lays a constant wind and
 Dryden turbulence over the vehicle's own.
@@ -52,10 +55,12 @@ class Parameters:
         self._say_limited = statustext_limited
         self.values = {name: (default, ptype) for name, default, ptype in ap.params}
         self.values[ap.sysid_param] = (sysid, PP.INT)
-        self.values[ap.hover_param] = (float(vehicle.hover_thrust), PP.REAL)
         self.names = [name for name, _, _ in ap.params]
         for name, value in (initial or {}).items():
             self.values[name] = (parse_param(ap, name, value), self.values[name][1])
+        self._apply_thrust_model()
+        if ap.hover_param not in (initial or {}):
+            self.values[ap.hover_param] = (float(vehicle.hover_thrust), PP.REAL)
         self._base_wind = vehicle.wind
         if any(name.startswith("SIM_WIND_") for name in (initial or {})):
             self._update_wind(announce=False)
@@ -108,10 +113,26 @@ class Parameters:
             self._say_limited("param:" + name, mavlink.MAV_SEVERITY_WARNING,
                               f"Parameter {name}: value refused")
         else:
+            old = self.values[name]
             self.values[name] = (value, ptype)
             if name.startswith("SIM_WIND_"):
                 self._update_wind()
+            if name == self.ap.thrust_model_param:
+                # the hover point moves with the linearisation; it is reported at once
+                try:
+                    self._apply_thrust_model()
+                except ValueError as exc:
+                    self.values[name] = old
+                    self._apply_thrust_model()
+                    self._say_limited("param:" + name, mavlink.MAV_SEVERITY_WARNING,
+                                      f"Parameter {name}: value refused ({exc})"[:50])
+                self.values[self.ap.hover_param] = (float(self.vehicle.hover_thrust), PP.REAL)
         self._send_value(link, name)
+
+    def _apply_thrust_model(self):
+        """The vehicle's firmware linearises with the thrust curve parameter's factor."""
+        value = self.values[self.ap.thrust_model_param][0]
+        self.vehicle.set_thrust_model_factor(self.ap.thrust_model_factor(value))
 
     def _update_wind(self, announce=True):
         spd = float(self.values["SIM_WIND_SPD"][0])
