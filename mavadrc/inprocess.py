@@ -41,6 +41,7 @@ from sim import physics as phys
 from sim.firmware import attitude as A
 from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
+from sim.personality import personality
 from sim.sensors import TYPICAL_NOISE
 from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into
 from sim.wind import WIND_SCRATCH
@@ -355,7 +356,11 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     spec = mission.controller
     seed = mission.seed if seed is None else seed
     wind = mission.wind if wind is None else wind
-    options = {"yaw": math.radians(mission.heading_deg), **dict(vehicle_options or {})}
+    options = {"yaw": math.radians(mission.heading_deg),
+               # the thrust curve the mission's autopilot linearises with, as the server's
+               "thrust_model_factor":
+                   personality(mission.autopilot).default_thrust_model_factor(),
+               **dict(vehicle_options or {})}
     if mission.noise:  # the server's --noise; its latency is the lag below
         options.setdefault("sensors", {"noise": TYPICAL_NOISE})
     v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,

@@ -447,6 +447,12 @@ class Personality:
         the autopilot really applies for a value of :attr:`thrust_model_param`."""
         raise NotImplementedError
 
+    def default_thrust_model_factor(self):
+        """:meth:`thrust_model_factor` of the parameter's default (what a fresh autopilot flies
+        with; the in-process fast path uses it as the server does)."""
+        default = next(v for name, v, _ in self.params if name == self.thrust_model_param)
+        return self.thrust_model_factor(default)
+
 
 #: PX4's publication rates of the topics behind its streams (Hz): vehicle_local_position,
 #: vehicle_global_position and vehicle_odometry come from an EKF2 update, one each

@@ -328,7 +328,7 @@ scenarios:
       - takeoff: {{altitude: 1.0, speed: 0.5}}
       - hover: {{duration: 2}}
     wind: {{components: [{{type: constant, speed: 2.0, direction_from_deg: 270}}]}}
-    sim: {{heading_deg: random}}
+    sim: {{heading_deg: random, autopilot: {autopilot}}}
 """
 
 
@@ -336,7 +336,7 @@ def test_the_fast_path_and_the_wire_fly_a_curved_vehicle_from_the_same_random_he
     """An x500 whose motors' curve (0.65) is not PX4's THR_MDL_FAC (0), from a heading drawn
     from seed 3: the in-process run and the lockstep MAVLink flight are the same flight."""
     exp = experiment_from_text("curve.yaml", EXPERIMENT.format(
-        vehicle=vehicle_file(tmp_path, 0.65)))
+        vehicle=vehicle_file(tmp_path, 0.65), autopilot="px4"))
     assert exp.scenarios[0].random
     seed = 3
     rec_fast, log = run_inprocess(exp, 0, 0, seed, keep_log=True)
@@ -379,3 +379,20 @@ def test_a_fleet_vehicle_with_its_own_thrust_model_steps_on_it():
         assert np.array_equal(a.state, b.state)
     assert rows.batched > 0
     assert rows_of[1].state[5] < rows_of[0].state[5] - 0.5  # 0.6 climbs with the right model
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_the_fast_path_linearises_with_the_missions_autopilot(tmp_path, autopilot):
+    """The in-process path gives its vehicle the thrust curve the mission's autopilot assumes
+    by default (THR_MDL_FAC 0, MOT_THST_EXPO 0.65), as the server does, so the hover command
+    the mission gives the controller (0.574 and 0.415 for an x500 on linear motors) really
+    hovers: PD, which has no integrator to hide a wrong one, holds its altitude."""
+    from mavadrc.inprocess import L_POS, L_REF, fly_inprocess
+
+    exp = experiment_from_text("curve.yaml", EXPERIMENT.format(
+        vehicle=vehicle_file(tmp_path, 0.0), autopilot=autopilot))
+    m = exp.mission(0, 0)
+    m.wind = None
+    run = fly_inprocess(m, kind="pd")
+    tail = run.log[-50:]
+    assert np.max(np.abs(tail[:, L_POS + 2] - tail[:, L_REF + 2])) < 0.01
