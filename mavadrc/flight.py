@@ -70,15 +70,30 @@ OSCILLATION_WARN_DEG = 5.0
 GRID_CHUNK = 2048
 
 
-def default_gains(kind):
-    """Position-loop gains that suit the bundled vehicles (per axis x, y, z)."""
+#: observer-based controllers with no input model: bandwidths whose linearised loop is stable
+#: on every vehicle whose acceleration answers a command with a first-order lag of 0.03-0.30 s
+#: plus 0-50 ms of delay, sampled at 50-250 Hz (mavadrc.margin; a test sweeps the family).
+#: Faster ones limit-cycled on PX4 SIH and ArduCopter SITL (wc 2.5, wo 12.5: +-21-34 deg).
+SAFE_WC = 1.0
+SAFE_WO = 4.0
+
+
+def default_gains(kind, input_model=False):
+    """Position-loop gains (per axis x, y, z).  LADRC and ADRC: told the vehicle's response
+    (``input_model``: the mission gives ``input_lag``), gains that suit the bundled vehicles;
+    not told, the slower ones that are safe on any vehicle of the family above."""
     if kind == "ladrc":
+        if not input_model:
+            return {"wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
         return {"wc": (2.5, 2.5, 3.0), "wo": (12.5, 12.5, 15.0)}
     if kind == "adrc":
         # The mission's trajectory comes with exact derivatives, so the TD (which would add lag
         # to a moving reference) is off unless the mission asks for it (td: true).
-        return {"td": False, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0), "r": (8.0, 8.0, 8.0),
-                "c": (1.0, 1.0, 1.0), "delta": (0.05, 0.05, 0.05)}
+        g = {"td": False, "r": (8.0, 8.0, 8.0), "c": (1.0, 1.0, 1.0),
+             "delta": (0.05, 0.05, 0.05)}
+        if not input_model:
+            return {**g, "wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
+        return {**g, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0)}
     if kind == "pid":
         # the PD default's bandwidth plus an integrator (channels.pid_gains): kp_pos = wc/2,
         # kp_vel = 2 wc, ki_vel = wc^2/2, no D, i.e. kp_pos (1.25, 1.25, 1.5) /s, kp_vel
@@ -93,9 +108,18 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
     name or file) resolves ``input_lag: auto`` by measuring that vehicle's response
     (:func:`sim.vehicle.response_time_constants`); ``rate_hz`` overrides the spec's rate."""
     kind = kind or spec.kind
-    gains = default_gains(kind)  # the mission's gains, where given, override these
-    if kind == spec.kind:
-        gains.update(spec.gains)
+    given = dict(spec.gains) if kind == spec.kind else {}
+    if kind in ("ladrc", "adrc") and "input_lag" in spec.gains:
+        # the vehicle's response, not a gain: it holds for any observer flown on it
+        given.setdefault("input_lag", spec.gains["input_lag"])
+    lag = given.get("input_lag")
+    told = lag == "auto" or (lag is not None and any(float(v) > 0.0 for v in lag))
+    gains = default_gains(kind, told)  # the mission's gains, where given, override these
+    gains.update(given)
+    if kind in ("ladrc", "adrc") and "wc" in given and "wo" not in given:
+        # the observer at the defaults' ratio to the controller given
+        ratio = 5.0 if told else SAFE_WO / SAFE_WC
+        gains["wo"] = tuple(ratio * float(w) for w in given["wc"])
     if gains.get("input_lag") == "auto":
         if vehicle is None:
             raise FlightError("input_lag: auto needs the mission's vehicle file (vehicle: NAME); "

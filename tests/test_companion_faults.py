@@ -29,7 +29,7 @@ M = mavutil.mavlink
 
 SHORT = """name: short hover
 vehicle: crazyflie
-controller: {type: ladrc, rate_hz: 100}
+controller: {type: ladrc, rate_hz: 100, input_lag: [0.13, 0.13, 0.05]}  # the Crazyflie's response
 trajectory:
   - takeoff: {altitude: 1.0, speed: 1.0}
   - hover: {duration: HOVER}

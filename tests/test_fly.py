@@ -38,9 +38,11 @@ def fly_quiet(mission, tmp_path, **kw):
 
 BOUNDS = {  # max 3-D error after the settling window (m)
     # ladrc flies the mission's tuned gains and measured input model (0.036 m); adrc and pd
-    # their defaults
+    # their defaults, adrc with the mission's input model (the fast defaults)
     "thesis_spiral_wind": {"ladrc": 0.05, "adrc": 0.12, "pd": 0.5},
-    "thesis_circle": {"ladrc": 0.12, "adrc": 0.12, "pd": 0.15},
+    # a PD mission with no input model: the observers fly the safe defaults (wc 1, wo 4;
+    # measured 0.21 and 0.24 m)
+    "thesis_circle": {"ladrc": 0.3, "adrc": 0.3, "pd": 0.15},
     "x500_gusts": {"ladrc": 0.15, "adrc": 0.15, "pd": 0.4},
 }
 
@@ -126,7 +128,7 @@ def test_the_record_holds_every_setpoint_and_the_estimates(tmp_path):
 def test_ardupilot_path_sets_guid_options_and_flies(tmp_path):
     summary, _ = fly_quiet(load_mission(MISSIONS / "ardupilot_hover.yaml"), tmp_path)
     assert summary["autopilot"] == "ardupilot" and summary["landed"]
-    assert summary["max_error_m"] < 0.06
+    assert summary["max_error_m"] < 0.12  # the safe defaults (no input model): 0.088 m
     assert summary["motor_delay_s"] == 2.0  # ArduCopter's ARMING_DELAY_SEC
 
 

@@ -71,3 +71,25 @@ def test_a_fast_observer_limit_cycles_there_as_on_the_real_one_and_the_record_sa
                 progress=False, stream=io.StringIO())
     assert pd["attitude_oscillation"]["amplitude_deg"] < 3.0
     assert not any("limit cycle" in w for w in pd["warnings"])
+
+
+@pytest.mark.parametrize("kind", ["ladrc", "adrc"])
+@pytest.mark.parametrize("name, autopilot", [("px4_sih_quad", "px4"),
+                                             ("arducopter_quad", "ardupilot")])
+def test_the_default_gains_do_not_limit_cycle_there(kind, name, autopilot, tmp_path):
+    """No gains, no input model given: the defaults (wc 1, wo 4) hold the slow vehicles within
+    3 deg of roll/pitch oscillation on the same waypoints where wc 2.5 / wo 12.5 swing past 15, and
+    the record's delay margin is positive."""
+    text = (open("configs/missions/ardupilot_hover.yaml").read()
+            .replace("vehicle: crazyflie", f"vehicle: {name}")
+            .replace("sim: {autopilot: ardupilot}", f"sim: {{autopilot: {autopilot}}}")
+            .replace("controller: {type: ladrc, rate_hz: 100}",
+                     f"controller: {{type: {kind}, rate_hz: 100}}"))
+    path = tmp_path / "m.yaml"
+    path.write_text(text)
+    s, _ = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False, progress=False,
+               stream=io.StringIO())
+    assert s["attitude_oscillation"]["amplitude_deg"] < 3.0, s["attitude_oscillation"]
+    assert not any("limit cycle" in w for w in s["warnings"])
+    assert s["delay_margin_s"] > 0.1
+    assert s["landed"] and s["max_error_m"] < 1.0
