@@ -122,6 +122,9 @@ def build_parser():
     t.add_argument("--workers", type=int, default=None,
                    help="parallel evaluations (default: one per core)")
     t.add_argument("--seed", type=int, default=0, help="the optimiser's seed")
+    t.add_argument("--bounds", action="append", default=[], metavar="NAME=LO:HI",
+                   help="a search parameter's range, e.g. wo_ratio=2:10 (repeatable; the "
+                        "defaults are printed at the start)")
     t.add_argument("--out", default=None, help="controller YAML to write (default: stdout)")
     t.set_defaults(func=_tune)
     p = sub.add_parser("plot", help="redraw the figures of a flight record or of any .tlog")

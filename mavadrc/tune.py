@@ -93,9 +93,69 @@ class _Objective:
         return _cost(exp, j, scenarios, seeds, spec)
 
 
+#: a parameter within this share of its range from a bound "sits on" it
+ON_BOUND = 0.01
+
+
+def search_space(kind, overrides=None):
+    """[(name, lower, upper)] of ``kind``'s search, with ``overrides`` {name: (lo, hi)}."""
+    space = list(SPACES[kind])
+    names = [nm for nm, _, _ in space]
+    for nm, (lo, hi) in (overrides or {}).items():
+        if nm not in names:
+            raise ValueError(f"--bounds: {kind} has no parameter {nm!r} (its search: "
+                             f"{', '.join(names)})")
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
+            raise ValueError(f"--bounds {nm}: need 0 < LO < HI (got {lo:g}:{hi:g})")
+        space[names.index(nm)] = (nm, float(lo), float(hi))
+    return space
+
+
+def parse_bounds(items):
+    """{name: (lo, hi)} from ``NAME=LO:HI`` strings."""
+    out = {}
+    for item in items or ():
+        name, sep, rng = item.partition("=")
+        lo, sep2, hi = rng.partition(":")
+        try:
+            if not (sep and sep2):
+                raise ValueError
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise ValueError(f"--bounds: expected NAME=LO:HI (got {item!r})") from None
+    return out
+
+
+def on_bounds(space, x):
+    """[(name, value, the bound it sits on)] of the parameters at a bound of their range."""
+    out = []
+    for (nm, lo, hi), v in zip(space, x):
+        margin = ON_BOUND * (hi - lo)
+        if v <= lo + margin:
+            out.append((nm, float(v), lo))
+        elif v >= hi - margin:
+            out.append((nm, float(v), hi))
+    return out
+
+
+def judged_on_tuned(exp, controller, idx):
+    """The experiment's goals about ``controller`` whose scenarios include ones tuned on:
+    [(goal text or metric, [scenario names])]."""
+    tuned = {exp.scenarios[i].name for i in idx}
+    out = []
+    for g in exp.goals:
+        if controller not in g["controllers"] and g.get("ratio_to") != controller:
+            continue
+        hit = sorted(n for n in tuned if fnmatch.fnmatchcase(n, g["scenario"]))
+        if hit:
+            out.append((g["text"] or g["metric"], hit))
+    return out
+
+
 def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, workers=None,
-         seed=0, stream=sys.stderr):
-    """Run the search; returns a dict with the best gains, its cost and the starting cost."""
+         seed=0, stream=sys.stderr, bounds=None):
+    """Run the search; returns a dict with the best gains, its cost and the starting cost.
+    ``bounds``: {parameter: (lo, hi)} replacing the kind's default range (:data:`SPACES`)."""
     from scipy.optimize import differential_evolution
 
     exp = load_experiment(path)
@@ -113,44 +173,70 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     # figures are not the ones the search saw
     seed_list = list(range(TUNING_SEEDS, TUNING_SEEDS + (len(exp.seeds) if seeds is None
                                                          else int(seeds))))
-    space = SPACES[kind]
-    bounds = [(lo, hi) for _, lo, hi in space]
+    space = search_space(kind, bounds)
+    limits = [(lo, hi) for _, lo, hi in space]
     obj = _Objective(exp.source, exp.text, j, idx, seed_list)
-    start = _cost(exp, j, idx, seed_list)
     n = default_workers(workers)
     stream.write(f"tuning {controller} ({kind}) on {len(idx)} scenarios x {len(seed_list)} "
-                 f"seeds; starting gains cost {start:.4f} m\n")
+                 f"seeds; search: " + ", ".join(f"{nm} {lo:g}..{hi:g}" for nm, lo, hi in space)
+                 + " (--bounds NAME=LO:HI to change)\n")
+    for text, names in judged_on_tuned(exp, controller, idx):
+        stream.write(f"warning: the goal '{text}' is judged on scenarios tuned on "
+                     f"({', '.join(names)}): judge it on held-out scenarios too\n")
+    start = _cost(exp, j, idx, seed_list)
+    stream.write(f"starting gains cost {start:.4f} m\n")
     evals = [0]
 
     def report(intermediate_result):  # the generation's best, as scipy keeps it
         evals[0] += 1
         r = intermediate_result
-        stream.write(f"  generation {evals[0]}: best {r.fun:.4f} m at "
+        stream.write(f"  generation {evals[0]}/{maxiter}: best {r.fun:.4f} m at "
                      + ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, r.x)) + "\n")
         stream.flush()
 
     pool = process_pool(n) if n > 1 else None
     mapper = pool.map if pool is not None else map
     try:
-        res = differential_evolution(obj, bounds, maxiter=maxiter, popsize=popsize, seed=seed,
+        res = differential_evolution(obj, limits, maxiter=maxiter, popsize=popsize, seed=seed,
                                      tol=1e-3, polish=False, updating="deferred",
                                      workers=mapper, callback=report, init="sobol")
     finally:
         if pool is not None:
             pool.shutdown()
-    best = spec_with(exp.controllers[j].spec, kind, res.x)
-    return {"controller": controller, "kind": kind, "gains": best.gains, "cost_m": float(res.fun),
+    edges = on_bounds(space, res.x)
+    for nm, v, b in edges:
+        stream.write(f"warning: {nm} = {v:.4g} sits on its bound {b:g}: the optimum may lie "
+                     f"beyond it (--bounds {nm}=LO:HI widens the search)\n")
+    worse = not res.fun < start
+    if worse:
+        # a search that did not beat its start must not hand back worse gains as "tuned"
+        stream.write(f"warning: the search found nothing better than the starting gains "
+                     f"({res.fun:.4f} against {start:.4f} m): writing the starting gains; give "
+                     f"it more --maxiter / --popsize\n")
+        best = copy.deepcopy(exp.controllers[j].spec)
+        cost = start
+    else:
+        best = spec_with(exp.controllers[j].spec, kind, res.x)
+        cost = float(res.fun)
+    return {"controller": controller, "kind": kind, "gains": best.gains, "cost_m": cost,
             "start_cost_m": start, "x": {nm: float(v) for (nm, _, _), v in zip(space, res.x)},
             "evaluations": int(res.nfev), "scenarios": [exp.scenarios[i].name for i in idx],
-            "seeds": seed_list, "spec": best}
+            "seeds": seed_list, "spec": best, "bounds": {nm: (lo, hi) for nm, lo, hi in space},
+            "on_bounds": [nm for nm, _, _ in edges], "improved": not worse}
 
 
 def controller_yaml(result):
     """The tuned controller as an experiment/mission ``controller`` entry (YAML text)."""
     s = result["spec"]
-    lines = [f"# mavadrc tune: RMS error after settling (geometric mean) {result['cost_m']:.4f} m "
+    lines = ([] if result["improved"] else
+             ["# mavadrc tune found nothing better: these are the starting gains"])
+    lines += [f"# mavadrc tune: RMS error after settling (geometric mean) {result['cost_m']:.4f} m "
              f"(was {result['start_cost_m']:.4f} m) over {len(result['scenarios'])} scenarios x "
              f"{len(result['seeds'])} seeds, {result['evaluations']} candidates",
+             "# search bounds: " + ", ".join(f"{nm} {lo:g}..{hi:g}"
+                                             for nm, (lo, hi) in result["bounds"].items())
+             + (f"; on a bound: {', '.join(result['on_bounds'])}" if result["on_bounds"]
+                else ""),
              f"name: {result['controller']}", f"type: {s.kind}", f"rate_hz: {s.rate_hz:g}",
              f"tilt_max_deg: {s.tilt_max_deg:g}"]
     for k, v in s.gains.items():
@@ -169,7 +255,8 @@ def main(args):
     try:
         result = tune(args.experiment, args.controller, scenarios=args.scenarios or ["*"],
                       seeds=args.seeds, maxiter=args.maxiter, popsize=args.popsize,
-                      workers=args.workers, seed=args.seed)
+                      workers=args.workers, seed=args.seed,
+                      bounds=parse_bounds(getattr(args, "bounds", None)))
     except (ConfigError, OSError, ValueError) as exc:
         print(f"mavadrc tune: {exc}", file=sys.stderr)
         return 2

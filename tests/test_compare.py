@@ -249,3 +249,60 @@ def test_tune_improves_on_its_start_and_writes_a_controller(tmp_path):
     spec = _read_controller(Section(load_yaml(tmp_path / "c.yaml", text=text), "c.yaml"))
     assert spec.kind == "pd" and spec.gains["wc"][0] > 0.6
     assert math.isfinite(res["cost_m"])
+
+
+def test_tune_shows_its_bounds_takes_new_ones_and_warns_on_an_edge(tmp_path):
+    """The search space is printed and settable (--bounds NAME=LO:HI); an optimum on a bound
+    is flagged (in the output and the YAML) since the best may lie beyond; a goal judged on the
+    very scenarios tuned on is flagged too."""
+    import io
+
+    from mavadrc.tune import controller_yaml, on_bounds, parse_bounds, search_space, tune
+
+    assert parse_bounds(["wo_ratio=2:10"]) == {"wo_ratio": (2.0, 10.0)}
+    for bad in (["wo_ratio=2"], ["wo_ratio:2:3"], ["x=a:b"]):
+        with pytest.raises(ValueError, match="NAME=LO:HI"):
+            parse_bounds(bad)
+    with pytest.raises(ValueError, match="no parameter 'r'"):
+        search_space("ladrc", {"r": (1.0, 2.0)})
+    with pytest.raises(ValueError, match="0 < LO < HI"):
+        search_space("pd", {"wc_xy": (3.0, 1.0)})
+    assert ("wo_ratio", 2.0, 10.0) in search_space("ladrc", {"wo_ratio": (2.0, 10.0)})
+
+    bad = TINY.read_text().replace("{name: PD, type: pd, wc: [2.5, 2.5, 3.0]}",
+                                   "{name: PD, type: pd, wc: [0.6, 0.6, 0.8]}")
+    path = tmp_path / "tune.yaml"
+    path.write_text(bad)
+    out = io.StringIO()
+    # the better gains lie above 0.8: capped there, the optimum sits on the cap
+    res = tune(path, "PD", scenarios="gusty*", seeds=1, maxiter=1, popsize=2, workers=1,
+               stream=out, bounds={"wc_xy": (0.5, 0.8)})
+    text = out.getvalue()
+    assert "wc_xy 0.5..0.8" in text and "--bounds" in text
+    assert res["improved"] and res["cost_m"] < res["start_cost_m"]
+    assert "judged on scenarios tuned on (gusty hover)" in text
+    assert "search bounds: wc_xy 0.5..0.8" in controller_yaml(res)
+    # an optimum on an edge is flagged, in the output and the YAML
+    space = search_space("pd", {"wc_xy": (0.5, 0.8)})
+    assert on_bounds(space, [0.799, 3.0]) == [("wc_xy", 0.799, 0.8)]
+    assert on_bounds(space, [0.7, 10.0]) == [("wc_z", 10.0, 10.0)]
+    assert on_bounds(space, [0.7, 3.0]) == []
+    res = dict(res, on_bounds=["wc_xy"])
+    assert "on a bound: wc_xy" in controller_yaml(res)
+
+
+def test_tune_never_hands_back_gains_worse_than_its_start(tmp_path):
+    """Started from good gains and held to a range of poor ones, the search cannot beat its
+    start: it says so and writes the starting gains, not its worse best."""
+    import io
+
+    from mavadrc.tune import controller_yaml, tune
+
+    out = io.StringIO()
+    res = tune(TINY, "PD", scenarios="gusty*", seeds=1, maxiter=1, popsize=2, workers=1,
+               stream=out, bounds={"wc_xy": (0.5, 0.6), "wc_z": (0.5, 0.6)})
+    assert not res["improved"]
+    assert res["cost_m"] == res["start_cost_m"]
+    assert res["gains"]["wc"] == (2.5, 2.5, 3.0)
+    assert "nothing better than the starting gains" in out.getvalue()
+    assert controller_yaml(res).startswith("# mavadrc tune found nothing better")
