@@ -216,3 +216,13 @@ def test_fleet_ports_move_by_instance():
     assert [cli.fleet_ports(args, k)["offboard_port"] for k in range(3)] == [15000, 15001, 15002]
     assert [cli.fleet_ports(args, k)["bind_offboard"] for k in range(3)] == [0, 0, 0]
     assert len({cli.fleet_ports(args, k)["gcs_port"] for k in range(3)}) == 1
+
+
+def test_a_fleet_whose_offboard_ports_reach_the_ground_station_port_is_refused():
+    """Instance 10 on the default ports would send its offboard link to 14540 + 10 = 14550, the
+    ground-station port: refused at once with the options that fix it, before anything binds."""
+    p = subprocess.run([sys.executable, "-m", "sim", "--count", "12", "--duration", "1"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode != 0 and "Traceback" not in p.stderr
+    assert "instance 10" in p.stderr and "14550" in p.stderr and "--offboard-port" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1
