@@ -50,7 +50,7 @@ from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .margin import delay_margin, margin_record
-from .record import Recorder, attitude_oscillation
+from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
@@ -737,6 +737,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary.update(self.recorder.errors())
         if self.m.settle_s > 0:
             summary["after_settle"] = self.recorder.errors(self.m.settle_s)
+        summary = finite(summary)  # a figure that does not exist is None, in the file and here
         self.rec.write_summary(summary)
         return summary
 
@@ -753,7 +754,10 @@ def print_table(summary, out=sys.stdout):
               f"{summary['max_error_m']:9.4f}\n")
     if "after_settle" in summary:
         a = summary["after_settle"]
-        out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
-                  f"max {a['max_error_m']:.4f}\n")
+        if a["rms_error_m"] is None:
+            out.write(f"  after {summary['settle_s']:.0f} s: not reached\n")
+        else:
+            out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
+                      f"max {a['max_error_m']:.4f}\n")
     out.flush()
 
