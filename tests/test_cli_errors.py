@@ -129,3 +129,62 @@ def test_ctrl_c_while_waiting_for_a_heartbeat_is_one_line_and_exit_130(tmp_path)
     one_clear_line(lines, "interrupted", f"udpin:127.0.0.1:{port}", "nothing flew")
     assert "Traceback" not in out + err and "nan" not in out
     assert not any((tmp_path / "runs").glob("*/*"))  # nothing flew: no record kept
+
+
+# --- mavadrc compare ------------------------------------------------------------------------------
+
+TINY = ROOT / "tests" / "data" / "tiny_experiment.yaml"
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--seeds", "0"], ["--seeds 0", "at least 1"]),
+    (["--workers", "0"], ["--workers 0", "at least 1"]),
+    (["--out", "README.md"], ["--out README.md", "is a file"]),
+])
+def test_compare_refuses_a_bad_option_in_one_line(options, words, capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    code, lines = run_cli(["compare", str(TINY), "-q", *options], capsys)
+    assert code == 2
+    one_clear_line(lines, *words)
+
+
+def test_compare_on_a_cluster_without_dask_says_what_to_install(capsys, monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+    code, lines = run_cli(["compare", str(TINY), "-q", "--out", str(tmp_path / "c"),
+                           "--scheduler", "tcp://127.0.0.1:8786"], capsys)
+    assert code == 2
+    one_clear_line(lines, "distributed", '.[cluster]')
+    assert not (tmp_path / "c").exists()
+
+
+def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
+    assert main(["compare", str(TINY), "--out", str(tmp_path), "--seeds", "1",
+                 "--no-figures"]) == 0
+    err = capsys.readouterr().err
+    bar_end = err.index("6/6 runs")
+    assert "writing the report" in err[bar_end:]
+
+
+def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
+    text = TINY.read_text()
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "compare", str(TINY), "--seeds",
+                             "200", "--workers", "2", "--out", str(tmp_path / "c")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        t0 = time.monotonic()
+        line = ""
+        while " runs, " not in line:  # the progress bar: the workers are running
+            line = proc.stderr.readline()
+            assert line and time.monotonic() - t0 < 120.0, "no progress line"
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130
+    lines = [ln for ln in err.splitlines() if ln.strip() and " runs, " not in ln]
+    one_clear_line(lines, "interrupted", "workers")
+    assert "Traceback" not in out + err
+    assert text  # the experiment is the shipped tiny one, untouched
