@@ -11,7 +11,9 @@ nothing and leaves no record folder behind; one whose bundled vehicle died at st
 folder, with the vehicle's ``vehicle.log`` and a ``summary.json`` that says why.
 """
 
+import dataclasses
 import datetime
+import math
 import shutil
 import sys
 from pathlib import Path
@@ -99,17 +101,21 @@ def real_vehicle_notices(mission):
 
 
 def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None, wind=None,
-        figures=True, progress=True, timeout=None, stream=sys.stdout, start_at=None,
+        figures=True, progress=True, timeout=None, stream=None, start_at=None,
         takeover=False, sysid=None, signing_key=None):
     """Fly ``mission`` (a :class:`~mavadrc.mission.Mission`); returns (summary, record folder).
 
     Raises :class:`UsageError` before anything is sent when the mission or an option cannot be
     flown, and :class:`FlightError` / :class:`LinkError` when the flight could not start (the
     record, summary.json included, is written either way)."""
+    stream = stream if stream is not None else sys.stdout
     kind = kind or mission.controller.kind
     hover, source = mission.hover_thrust, mission.hover_source
     check_options(connect=connect, lockstep=lockstep, seed=seed, wind=wind, timeout=timeout,
                   sysid=sysid, out=out)
+    # the mission as flown: every override applied (the record holds this one)
+    mission = dataclasses.replace(mission, seed=mission.seed if seed is None else seed,
+                                  wind=mission.wind if wind is None else wind)
     if connect is not None:
         notes, hover = real_vehicle_notices(mission)
         for n in notes:
@@ -137,7 +143,16 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
                         start_at=start_at, takeover=takeover, hover_thrust=hover,
                         hover_source=source, bundled=True if vehicle is not None else None,
                         watchdog=vehicle.check if vehicle is not None else None)
-        summary = flight.run()
+        flight.context = run_context(mission, kind, connect, lockstep)
+        if kind != mission.controller.kind:
+            stream.write(f"note: --controller {kind}: the mission's {mission.controller.kind} "
+                         f"gains do not apply; flying {kind}'s defaults (summary.json: "
+                         "controller_flown)\n")
+        try:
+            summary = flight.run()
+        finally:
+            if flight.summary is not None:
+                write_effective(folder, mission, flight.summary, bundled=connect is None)
     except KeyboardInterrupt:
         summary = None  # before the flight could answer it: nothing was heard, nothing flew
         raise Interrupted(f"interrupted{f' while waiting for {url}' if url else ''}: "
@@ -160,6 +175,75 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
     if figures:
         draw_figures(folder, stream)
     return summary, folder
+
+
+def versions():
+    """The versions that decide a flight's numbers."""
+    import platform
+    from importlib import metadata
+
+    from . import __version__
+
+    out = {"mavadrc": __version__, "python": platform.python_version()}
+    for name in ("pymavlink", "numpy", "numba"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def run_context(mission, kind, connect, lockstep):
+    """What summary.json keeps of how the flight was made besides the controller: the command
+    line, the versions, and the mission's settings after every override."""
+    config = {"mission_file": str(mission.source), "controller": kind,
+              "controller_replaced": kind != mission.controller.kind}
+    if connect is None:
+        wind = mission.wind
+        config.update(vehicle=mission.vehicle or "crazyflie", seed=mission.seed,
+                      wind=str(wind) if isinstance(wind, Path) else wind,
+                      autopilot=mission.autopilot,
+                      attitude_controller=mission.attitude_controller, noise=mission.noise,
+                      sensor_latency_s=mission.sensor_latency_s,
+                      heading_deg=("random" if math.isnan(mission.heading_deg)
+                                   else mission.heading_deg),
+                      lockstep=bool(lockstep))
+    else:
+        config.update(connect=connect)
+    return {"command_line": list(sys.argv), "versions": versions(), "config": config}
+
+
+def write_effective(folder, mission, summary, bundled):
+    """effective.yaml beside mission.yaml: the mission with every override applied (the
+    controller flown with its gains resolved; the bundled vehicle's seed and wind), so
+    ``mavadrc fly FOLDER/effective.yaml --lockstep`` flies the same flight again.  Skipped for
+    a mission that is not a file of its own (an experiment's run)."""
+    import yaml
+
+    controller = summary.get("controller_flown")
+    if controller is None or not Path(folder).is_dir():
+        return
+    try:
+        doc = yaml.safe_load(mission.text)
+    except yaml.YAMLError:
+        return
+    if not isinstance(doc, dict) or "trajectory" not in doc:
+        return
+    doc["controller"] = controller
+    if bundled:
+        sim = doc.get("sim") if isinstance(doc.get("sim"), dict) else {}
+        doc["sim"] = {**sim, "seed": int(mission.seed)}
+        wind = mission.wind
+        if isinstance(wind, (str, Path)) and Path(wind).is_file():
+            wind = str(Path(wind).resolve())
+        if wind is not None:
+            from .embedded import _plain
+
+            doc["wind"] = _plain(wind)
+    head = (f"# {Path(mission.source).name} as flown: every override applied, the controller's "
+            "gains resolved\n")
+    (Path(folder) / "effective.yaml").write_text(head + yaml.safe_dump(doc, sort_keys=False,
+                                                                      default_flow_style=None))
 
 
 def interrupted(summary):

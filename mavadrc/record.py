@@ -2,8 +2,11 @@
 
     flight.tlog      every MAVLink frame both ways (8-byte big-endian Unix time in us + frame)
     controller.csv   one row per controller step (columns: :data:`COLUMNS`)
-    summary.json     controller, mission, duration and the error figures
-    mission.yaml     the mission as flown
+    summary.json     controller, mission, duration and the error figures; how the flight was
+                     made: the controller flown (controller_flown), the settings after every
+                     override (config), the command line, the versions, the vehicle's identity
+    mission.yaml     the mission file as given
+    effective.yaml   the mission as flown: every override applied, the gains resolved
     *.png            figures (see :mod:`mavadrc.figures`)
 
 Both the tlog and the table are flushed as they go, so a killed process leaves readable files.
