@@ -188,3 +188,18 @@ def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     one_clear_line(lines, "interrupted", "workers")
     assert "Traceback" not in out + err
     assert text  # the experiment is the shipped tiny one, untouched
+
+
+def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_path, monkeypatch):
+    from mavadrc.control._jit import needs_compiling
+
+    (tmp_path / "fresh_kernel_mod.py").write_text(
+        "from numba import njit\n\n@njit(cache=True)\ndef twice(x):\n    return 2.0 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import fresh_kernel_mod as mod
+
+    assert needs_compiling(mod.twice)  # never compiled, nothing on disk
+    assert mod.twice(1.5) == 3.0
+    assert not needs_compiling(mod.twice)  # compiled in this process
+    mod.twice.overloads.clear()
+    assert not needs_compiling(mod.twice)  # and in numba's on-disk cache
