@@ -12,6 +12,7 @@ import concurrent.futures as cf
 import json
 import math
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -24,10 +25,10 @@ RESULTS_VERSION = 1
 class Progress:
     """A one-line progress bar on a terminal, a line every few seconds otherwise."""
 
-    def __init__(self, total, out=sys.stderr, enabled=True):
+    def __init__(self, total, out=None, enabled=True):
         self.total = total
         self.done = 0
-        self.out = out
+        self.out = out if out is not None else sys.stderr
         self.enabled = enabled
         self.t0 = time.monotonic()
         self._last = 0.0
@@ -66,6 +67,9 @@ def _warm_up(exp):
 def _worker_init():
     # one thread per worker process: the processes are the parallelism
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    # Ctrl-C reaches the whole process group: the parent answers it and stops the workers,
+    # which would otherwise each print a traceback
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def default_workers(workers=None):
@@ -84,7 +88,7 @@ def process_pool(workers):
 
 
 def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess", out_dir=None,
-               progress=True, keep_logs_seed=None, stream=sys.stderr, rerun_identical=False):
+               progress=True, keep_logs_seed=None, stream=None, rerun_identical=False):
     """Every run of the matrix; returns (records in matrix order, {(i, j): log} for the runs of
     ``keep_logs_seed``, wall seconds).
 
@@ -95,6 +99,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
     ``seed_independent: true``, and the copies ``same_as_seed`` and ``wall_s`` 0.
     ``rerun_identical`` flies every seed anyway.
     """
+    stream = stream if stream is not None else sys.stderr
     seeds = list(exp.seeds if seeds is None else seeds)
     runs = exp.runs(seeds)
     if via == "mavlink":
@@ -116,7 +121,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
     t0 = time.perf_counter()
     results = [None] * len(tasks)
     if scheduler:
-        from distributed import Client, as_completed
+        Client, as_completed = dask_client()
 
         with Client(scheduler) as client:
             futures = client.map(run_task, tasks, pure=False)
@@ -127,6 +132,13 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
                 bar.step(ticks[k])
     else:
         if via == "inprocess":
+            from .control._jit import needs_compiling
+            from .inprocess import closed_loop
+
+            if needs_compiling(closed_loop):
+                stream.write("compiling the simulation and controller kernels (the first run "
+                             "after an install or an update; numba caches them)\n")
+                stream.flush()
             _warm_up(exp)
         n = default_workers(workers)
         if via == "mavlink":
@@ -136,11 +148,16 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
                 results[k] = run_task(task)
                 bar.step(ticks[k])
         else:
-            with process_pool(n) as pool:
+            pool = process_pool(n)
+            try:
                 chunk = max(1, min(8, len(tasks) // (4 * n)))
                 for k, res in enumerate(pool.map(run_task, tasks, chunksize=chunk)):
                     results[k] = res
                     bar.step(ticks[k])
+            except BaseException:  # Ctrl-C, an error: the workers are stopped, not waited for
+                stop_pool(pool)
+                raise
+            pool.shutdown()
     wall = time.perf_counter() - t0
     by_run = {r: res[0] for r, res in zip(flown, results)}
     for r in repeats:
@@ -154,6 +171,31 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
         records.append(rec)
     logs = {(i, j): res[1] for (i, j, s), res in zip(flown, results) if res[1] is not None}
     return records, logs, wall
+
+
+def stop_pool(pool):
+    """Stop a process pool now: the queued runs cancelled, the workers terminated."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        proc.join(5)
+
+
+def dask_client():
+    """Dask's (Client, as_completed), or a UsageError saying how to install it."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise UsageError("--scheduler runs on a Dask cluster, and the distributed package is "
+                         "not installed: pip install -e \".[cluster]\"") from None
+    return Client, as_completed
+
+
+class UsageError(ValueError):
+    """An option that cannot be run as given (exit 2, nothing run)."""
 
 
 def runs_flown(records):
@@ -215,9 +257,20 @@ def _write_csv(path, records):
 
 
 def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="inprocess",
-            figures=True, progress=True, stream=sys.stderr, rerun_identical=False):
+            figures=True, progress=True, stream=None, rerun_identical=False):
     """Run the experiment at ``path`` and write its folder; returns (folder, experiment,
     records)."""
+    stream = stream if stream is not None else sys.stderr
+    if seeds is not None and seeds < 1:
+        raise UsageError(f"--seeds {seeds}: must be at least 1 (the runs use seeds 0..N-1)")
+    if workers is not None and workers < 1:
+        raise UsageError(f"--workers {workers}: must be at least 1")
+    if scheduler:
+        dask_client()
+    if out:
+        from .fly import check_out_folder
+
+        check_out_folder(out)
     exp = load_experiment(path)
     seed_list = exp.seeds if seeds is None else list(range(int(seeds)))
     folder = Path(out) if out else Path("runs") / f"compare-{Path(exp.source).stem}"
@@ -230,6 +283,8 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
                                      via=via, out_dir=folder, progress=progress,
                                      keep_logs_seed=seed_list[0] if figures else None,
                                      stream=stream, rerun_identical=rerun_identical)
+    stream.write(f"writing the report{' and figures' if figures else ''} to {folder}\n")
+    stream.flush()
     flown = runs_flown(records)
     meta = {"seeds": seed_list, "via": via, "scheduler": scheduler, "runs": len(records),
             "rerun_identical": bool(rerun_identical),
@@ -252,10 +307,19 @@ def main(args):
 
     try:
         folder, exp, records = compare(args.experiment, out=args.out, seeds=args.seeds,
-                                  workers=args.workers, scheduler=args.scheduler, via=args.via,
-                                  figures=not args.no_figures, progress=not args.quiet,
-                                  rerun_identical=args.rerun_identical)
-    except (ConfigError, OSError, ValueError) as exc:
+                                       workers=args.workers, scheduler=args.scheduler,
+                                       via=args.via, figures=not args.no_figures,
+                                       progress=not args.quiet,
+                                       rerun_identical=args.rerun_identical)
+    except KeyboardInterrupt:
+        print("\nmavadrc compare: interrupted: the workers were stopped, no report written",
+              file=sys.stderr)
+        return 130
+    except OSError as exc:
+        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
+        print(f"mavadrc compare: {what}", file=sys.stderr)
+        return 2
+    except (ConfigError, ValueError) as exc:
         print(f"mavadrc compare: {exc}", file=sys.stderr)
         return 2
     from .report import summary_table

@@ -110,17 +110,27 @@ class EmbeddedVehicle:
             self.log.close()
 
     def check(self):
-        """Raise FlightError if the vehicle process died, with the end of its log."""
+        """Raise FlightError if the vehicle process died, with its last words (the error line
+        of a traceback, not the frames above it) and where its whole log is."""
         if self.proc.poll() is not None:
             from .link import FlightError
 
-            tail = ""
-            if self.log_path is not None and self.log_path.exists():
-                lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines()
-                         if ln.strip()]
-                tail = ": " + " / ".join(lines[-3:]) if lines else ""
-            raise FlightError(f"the bundled vehicle exited with code {self.proc.returncode}"
-                              f"{tail}")
+            raise FlightError(f"the bundled vehicle exited at once (code {self.proc.returncode})"
+                              f"{last_words(self.log_path)}")
+
+
+def last_words(log_path):
+    """': <the log's last meaningful line> (whole log: PATH)', or '' with no log."""
+    if log_path is None or not log_path.exists():
+        return ""
+    lines = [ln.strip() for ln in log_path.read_text(errors="replace").splitlines()
+             if ln.strip()]
+    if not lines:
+        return ""
+    # a traceback's last line names the error; its frames (indented, "File ...") do not
+    last = next((ln for ln in reversed(lines) if not ln.startswith(("File ", "^", "~"))),
+                lines[-1])
+    return f": {last} (whole log: {log_path})"
 
 
 def link_options(mission):

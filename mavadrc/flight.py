@@ -50,7 +50,7 @@ from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .margin import delay_margin, margin_record
-from .record import Recorder, attitude_oscillation
+from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
@@ -102,11 +102,13 @@ def default_gains(kind, input_model=False):
     return {"wc": (2.5, 2.5, 3.0)}
 
 
-def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
-                    vehicle=None, attitude_controller="px4", rate_hz=None):
-    """The position controller of a mission's controller spec.  ``vehicle`` (a bundled vehicle
-    name or file) resolves ``input_lag: auto`` by measuring that vehicle's response
-    (:func:`sim.vehicle.response_time_constants`); ``rate_hz`` overrides the spec's rate."""
+def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4"):
+    """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
+    ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
+    that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
+    ``input_lag``), the observer's bandwidth derived from the controller's where only that is
+    given, and ``input_lag: auto`` measured.  Given as a mission's controller, they fly the same
+    controller again."""
     kind = kind or spec.kind
     given = dict(spec.gains) if kind == spec.kind else {}
     if kind in ("ladrc", "adrc") and "input_lag" in spec.gains:
@@ -127,6 +129,18 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
         from sim.vehicle import response_time_constants
         tau_xy, tau_z = response_time_constants(vehicle, attitude_controller)
         gains["input_lag"] = (tau_xy, tau_xy, tau_z)
+    return gains
+
+
+def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
+                    vehicle=None, attitude_controller="px4", rate_hz=None, gains=None):
+    """The position controller of a mission's controller spec.  ``vehicle`` (a bundled vehicle
+    name or file) resolves ``input_lag: auto`` by measuring that vehicle's response
+    (:func:`sim.vehicle.response_time_constants`); ``rate_hz`` overrides the spec's rate;
+    ``gains``: those of :func:`resolve_gains`, already resolved."""
+    kind = kind or spec.kind
+    gains = dict(gains if gains is not None else
+                 resolve_gains(spec, kind, vehicle, attitude_controller))
     if kind == "pd" and "kp" in gains and "wc" in gains:
         gains.pop("wc")
     # pid: wc gives every gain (channels.pid_gains); kp_pos, kp_vel, ki_vel, kd_vel given by the
@@ -235,6 +249,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.latency = []
         self.ages = []
         self.ctrl = None
+        self.gains = None  # the controller's gains, resolved (resolve_gains)
+        self.summary = None
+        self.context = {}  # what the caller adds to the record (command line, versions, ...)
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
         self.traj = None
         self.origin = None
@@ -332,9 +349,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         return self.summary
 
     def _make_controller(self, hover):
+        if self.gains is None:
+            self.gains = resolve_gains(self.m.controller, self.kind, self.m.vehicle,
+                                       self.m.attitude_controller)
         ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=self.kind,
-                               vehicle=self.m.vehicle, attitude_controller=self.m.attitude_controller,
-                               rate_hz=self.rate)
+                               rate_hz=self.rate, gains=self.gains)
         self.delay_margin = delay_margin(ctrl)
         ctrl.reset(np.zeros(3))
         ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
@@ -647,6 +666,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     # --- records -------------------------------------------------------------------------------
 
+    def controller_record(self):
+        """The controller flown as a mission's ``controller:`` section (:func:`controller_record`);
+        None if the gains could not be resolved."""
+        if self.gains is None:
+            try:
+                self.gains = resolve_gains(self.m.controller, self.kind, self.m.vehicle,
+                                           self.m.attitude_controller)
+            except Exception:
+                return None
+        return controller_record(self.m.controller, self.kind, self.gains)
+
     def _named_values(self, s):
         """The observers' disturbance estimates at 10 Hz, live, for a ground station."""
         if self.kind != "pd" and s.t - self._last_named >= 0.1:
@@ -737,10 +767,24 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary.update(self.recorder.errors())
         if self.m.settle_s > 0:
             summary["after_settle"] = self.recorder.errors(self.m.settle_s)
+        summary["controller_flown"] = self.controller_record()
+        summary.update(self.context)
+        summary = finite(summary)  # a figure that does not exist is None, in the file and here
         self.rec.write_summary(summary)
         return summary
 
-def print_table(summary, out=sys.stdout):
+def controller_record(spec, kind, gains):
+    """A mission's ``controller:`` section that flies the controller flown: its kind, rate,
+    limits and every gain resolved (plain lists and numbers, for YAML and JSON)."""
+    rec = {"type": kind, "rate_hz": spec.rate_hz, "tilt_max_deg": spec.tilt_max_deg,
+           "thrust_min": spec.thrust_min, "thrust_max": spec.thrust_max}
+    for k, v in (gains or {}).items():
+        rec[k] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
+    return rec
+
+
+def print_table(summary, out=None):
+    out = out if out is not None else sys.stdout
     rms, mx = summary["rms_error_xyz_m"], summary["max_error_xyz_m"]
     if summary["rms_error_m"] is None:
         out.write("\n  no control step was flown: no error figures\n")
@@ -753,7 +797,10 @@ def print_table(summary, out=sys.stdout):
               f"{summary['max_error_m']:9.4f}\n")
     if "after_settle" in summary:
         a = summary["after_settle"]
-        out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
-                  f"max {a['max_error_m']:.4f}\n")
+        if a["rms_error_m"] is None:
+            out.write(f"  after {summary['settle_s']:.0f} s: not reached\n")
+        else:
+            out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
+                      f"max {a['max_error_m']:.4f}\n")
     out.flush()
 

@@ -3,10 +3,18 @@
 Exit status: 0 when the vehicle took off, flew the mission, was seen to touch down and was seen
 disarmed, with nothing cut short; 1 when the flight did not start or ended any other way (the
 reasons and the vehicle's last known state are printed and in summary.json); 2 for a bad mission
-file or option, before anything is sent to a vehicle.
+file or option, before anything is sent to a vehicle; 130 (as shells expect of Ctrl-C) when the
+user interrupted it (in the air: after the hold and landing that follow).
+
+A flight that never heard an autopilot (no heartbeat, or Ctrl-C while waiting for one) flew
+nothing and leaves no record folder behind; one whose bundled vehicle died at start keeps its
+folder, with the vehicle's ``vehicle.log`` and a ``summary.json`` that says why.
 """
 
+import dataclasses
 import datetime
+import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -20,6 +28,50 @@ from .record import FlightRecord
 
 class UsageError(ValueError):
     """A mission or an option that cannot be flown as given (exit 2, nothing sent)."""
+
+
+class Interrupted(Exception):
+    """Ctrl-C before an autopilot was heard: nothing flew (exit 130)."""
+
+
+#: the exit status of a command the user interrupted (128 + SIGINT), as shells expect
+EXIT_INTERRUPTED = 130
+
+
+def check_options(*, connect=None, lockstep=False, seed=None, wind=None, timeout=None,
+                  sysid=None, out=None):
+    """Every option of a flight checked before anything starts: raises :class:`UsageError`
+    naming the option and what it must be."""
+    if connect is not None:
+        if lockstep:
+            raise UsageError("--lockstep needs the bundled vehicle (no --connect)")
+        try:
+            parse_url(connect)
+        except LinkError as exc:
+            raise UsageError(f"--connect {exc}") from None
+        for name, value in (("--seed", seed), ("--wind", wind)):
+            if value is not None:
+                raise UsageError(f"{name} sets the bundled vehicle's wind: it means nothing with "
+                                 "--connect")
+    if seed is not None and not 0 <= seed < 2 ** 32:
+        raise UsageError(f"--seed {seed}: must be 0 to {2 ** 32 - 1}")
+    if timeout is not None and not timeout > 0:
+        raise UsageError(f"--timeout {timeout:g}: must be a positive number of seconds")
+    if sysid is not None and not 1 <= sysid <= 255:
+        raise UsageError(f"--sysid {sysid}: a MAVLink system id is 1 to 255")
+    if out is not None:
+        check_out_folder(out, "--out")
+
+
+def check_out_folder(out, option="--out"):
+    """``out`` is a folder, or can be made one: not a file, nor under one."""
+    p = Path(out)
+    for q in (p, *p.parents):
+        if q.exists():
+            if not q.is_dir():
+                what = "is a file" if q == p else f"is under {q}, a file"
+                raise UsageError(f"{option} {out}: {what}, not a folder")
+            return
 
 
 def record_folder(out, mission, kind):
@@ -49,19 +101,22 @@ def real_vehicle_notices(mission):
 
 
 def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None, wind=None,
-        figures=True, progress=True, timeout=None, stream=sys.stdout, start_at=None,
+        figures=True, progress=True, timeout=None, stream=None, start_at=None,
         takeover=False, sysid=None, signing_key=None):
     """Fly ``mission`` (a :class:`~mavadrc.mission.Mission`); returns (summary, record folder).
 
     Raises :class:`UsageError` before anything is sent when the mission or an option cannot be
     flown, and :class:`FlightError` / :class:`LinkError` when the flight could not start (the
     record, summary.json included, is written either way)."""
+    stream = stream if stream is not None else sys.stdout
     kind = kind or mission.controller.kind
     hover, source = mission.hover_thrust, mission.hover_source
+    check_options(connect=connect, lockstep=lockstep, seed=seed, wind=wind, timeout=timeout,
+                  sysid=sysid, out=out)
+    # the mission as flown: every override applied (the record holds this one)
+    mission = dataclasses.replace(mission, seed=mission.seed if seed is None else seed,
+                                  wind=mission.wind if wind is None else wind)
     if connect is not None:
-        if lockstep:
-            raise UsageError("--lockstep needs the bundled vehicle (no --connect)")
-        parse_url(connect)
         notes, hover = real_vehicle_notices(mission)
         for n in notes:
             stream.write(f"note: {n}\n")
@@ -70,6 +125,7 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
     vehicle = None
     link = None
     summary = None
+    url = connect
     try:
         if connect is None:
             from .embedded import EmbeddedVehicle
@@ -80,8 +136,6 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             url = vehicle.url
             stream.write(f"started the bundled vehicle ({mission.vehicle or 'crazyflie'}, "
                          f"{mission.autopilot}{', lockstep' if lockstep else ''})\n")
-        else:
-            url = connect
         link = Link(url, tlog=rec.tlog, signing_key=signing_key, sysid=sysid)
         flight = Flight(mission, link, rec, kind=kind, progress=progress, out=stream,
                         max_wall_s=timeout, lockstep=lockstep and connect is None,
@@ -89,16 +143,112 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
                         start_at=start_at, takeover=takeover, hover_thrust=hover,
                         hover_source=source, bundled=True if vehicle is not None else None,
                         watchdog=vehicle.check if vehicle is not None else None)
-        summary = flight.run()
+        flight.context = run_context(mission, kind, connect, lockstep)
+        if kind != mission.controller.kind:
+            stream.write(f"note: --controller {kind}: the mission's {mission.controller.kind} "
+                         f"gains do not apply; flying {kind}'s defaults (summary.json: "
+                         "controller_flown)\n")
+        try:
+            summary = flight.run()
+        finally:
+            if flight.summary is not None:
+                write_effective(folder, mission, flight.summary, bundled=connect is None)
+    except KeyboardInterrupt:
+        summary = None  # before the flight could answer it: nothing was heard, nothing flew
+        raise Interrupted(f"interrupted{f' while waiting for {url}' if url else ''}: "
+                          "nothing flew") from None
     finally:
+        heard = link is not None and link.heartbeat is not None
+        died = vehicle is not None and vehicle.proc.poll() is not None
         if link is not None:
             link.close()
         if vehicle is not None:
             vehicle.stop()
         rec.close()
+        if not heard and not died:
+            # no autopilot ever answered: nothing flew, and a folder of empty files would only
+            # hide the records of real flights
+            shutil.rmtree(folder, ignore_errors=True)
+    if not heard and interrupted(summary):
+        raise Interrupted(f"interrupted while waiting for an autopilot's heartbeat on {url}: "
+                          "nothing flew, no record kept")
     if figures:
         draw_figures(folder, stream)
     return summary, folder
+
+
+def versions():
+    """The versions that decide a flight's numbers."""
+    import platform
+    from importlib import metadata
+
+    from . import __version__
+
+    out = {"mavadrc": __version__, "python": platform.python_version()}
+    for name in ("pymavlink", "numpy", "numba"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def run_context(mission, kind, connect, lockstep):
+    """What summary.json keeps of how the flight was made besides the controller: the command
+    line, the versions, and the mission's settings after every override."""
+    config = {"mission_file": str(mission.source), "controller": kind,
+              "controller_replaced": kind != mission.controller.kind}
+    if connect is None:
+        wind = mission.wind
+        config.update(vehicle=mission.vehicle or "crazyflie", seed=mission.seed,
+                      wind=str(wind) if isinstance(wind, Path) else wind,
+                      autopilot=mission.autopilot,
+                      attitude_controller=mission.attitude_controller, noise=mission.noise,
+                      sensor_latency_s=mission.sensor_latency_s,
+                      heading_deg=("random" if math.isnan(mission.heading_deg)
+                                   else mission.heading_deg),
+                      lockstep=bool(lockstep))
+    else:
+        config.update(connect=connect)
+    return {"command_line": list(sys.argv), "versions": versions(), "config": config}
+
+
+def write_effective(folder, mission, summary, bundled):
+    """effective.yaml beside mission.yaml: the mission with every override applied (the
+    controller flown with its gains resolved; the bundled vehicle's seed and wind), so
+    ``mavadrc fly FOLDER/effective.yaml --lockstep`` flies the same flight again.  Skipped for
+    a mission that is not a file of its own (an experiment's run)."""
+    import yaml
+
+    controller = summary.get("controller_flown")
+    if controller is None or not Path(folder).is_dir():
+        return
+    try:
+        doc = yaml.safe_load(mission.text)
+    except yaml.YAMLError:
+        return
+    if not isinstance(doc, dict) or "trajectory" not in doc:
+        return
+    doc["controller"] = controller
+    if bundled:
+        sim = doc.get("sim") if isinstance(doc.get("sim"), dict) else {}
+        doc["sim"] = {**sim, "seed": int(mission.seed)}
+        wind = mission.wind
+        if isinstance(wind, (str, Path)) and Path(wind).is_file():
+            wind = str(Path(wind).resolve())
+        if wind is not None:
+            from .embedded import _plain
+
+            doc["wind"] = _plain(wind)
+    head = (f"# {Path(mission.source).name} as flown: every override applied, the controller's "
+            "gains resolved\n")
+    (Path(folder) / "effective.yaml").write_text(head + yaml.safe_dump(doc, sort_keys=False,
+                                                                      default_flow_style=None))
+
+
+def interrupted(summary):
+    """Whether the user's Ctrl-C ended the flight of ``summary``."""
+    return summary is not None and "interrupted by the user" in (summary.get("aborted") or [])
 
 
 def draw_figures(folder, stream):
@@ -117,18 +267,35 @@ def draw_figures(folder, stream):
 
 def main(args):
     try:
+        return _main(args)
+    except KeyboardInterrupt:  # Ctrl-C before the flight could answer it: nothing flew
+        print("\nmavadrc fly: interrupted: nothing flew", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _main(args):
+    try:
         mission = load_mission(args.mission)
         if args.wind is not None:
             from sim.wind import load_wind
             load_wind(args.wind)
+        if args.connect is None:
+            check_bundled(mission)
         summary, folder = fly(mission, connect=args.connect, kind=args.controller, out=args.out,
                               lockstep=args.lockstep, seed=args.seed, wind=args.wind,
                               figures=not args.no_figures, progress=not args.quiet,
                               timeout=args.timeout, takeover=args.takeover, sysid=args.sysid,
                               signing_key=read_key(args.signing_key))
-    except (ConfigError, UsageError, OSError) as exc:
+    except (ConfigError, UsageError) as exc:
         print(f"mavadrc fly: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
+        print(f"mavadrc fly: {what}", file=sys.stderr)
+        return 2
+    except Interrupted as exc:
+        print(f"\nmavadrc fly: {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except (FlightError, LinkError) as exc:
         print(f"\nmavadrc fly: {exc}", file=sys.stderr)
         return 1
@@ -143,7 +310,21 @@ def main(args):
         state = "ended: " + "; ".join(summary["aborted"] or ["not seen to land and disarm"])
         state += f"; last known: {summary['last_known_state']}"
     print(f"  {summary['duration_s']:.1f} s, {state}; record in {folder}")
+    if interrupted(summary):
+        return EXIT_INTERRUPTED
     return 0 if summary["landed"] else 1
+
+
+def check_bundled(mission):
+    """A mission flown on the bundled vehicle must name the vehicle flown: ``vehicle: {mass,
+    max_thrust}`` or ``{hover_thrust}`` describe a real vehicle's (for --connect), and the
+    bundled vehicle would fly the Crazyflie whatever they say."""
+    if mission.vehicle is None and (mission.mass is not None or mission.hover_thrust is not None):
+        given = ("mass and max_thrust" if mission.mass is not None else "hover_thrust")
+        raise UsageError(
+            f"{mission.source}: vehicle: {{{given}}} describes a real vehicle flown with "
+            "--connect; the bundled vehicle flies a vehicle file: name one (vehicle: crazyflie, "
+            "x500, quad2kg, ... in configs/vehicles, or a path to your own)")
 
 
 def read_key(path):
@@ -156,3 +337,5 @@ def read_key(path):
         return read_signing_key(path)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"--signing-key {path}: {exc.strerror or exc}") from None

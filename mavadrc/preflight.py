@@ -16,6 +16,8 @@ from .sequence import sequence_for
 MEASURE_S = 1.0
 #: below this share of the requested rate the flight says so and flies at the rate it gets
 RATE_OK = 0.9
+#: while waiting for the first heartbeat, a line every this many seconds
+HEARTBEAT_SAY_S = 5
 
 
 class Preflight:
@@ -24,19 +26,30 @@ class Preflight:
     def _connect(self):
         # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
         # while the vehicle comes up; with the hover thrust still to be read, made again after
+        from .control._jit import needs_compiling
+        from .control.position import position_update
+
+        if needs_compiling(position_update):
+            self.say("compiling the controller's kernels (the first flight after an install or "
+                     "an update; numba caches them: later flights start at once)")
         self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
         timeout = self.heartbeat_timeout
         if self._deadline is not None:
             timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))
         waited = [0]
+        # a vehicle of ours answers within a second; another is waited for aloud, from the start
+        first = 0 if self.watchdog is None else 3
 
         def idle():
             if self.watchdog is not None:
                 self.watchdog()
+            s = waited[0]
             waited[0] += 1
-            if waited[0] in (3, 10, 30):
-                self.say(f"waiting for an autopilot's heartbeat on {self.link.url} "
-                         f"({waited[0] - 1} s)")
+            if s == first:
+                self.say(f"waiting for an autopilot's heartbeat on {self.link.url} (up to "
+                         f"{timeout:.0f} s; Ctrl-C to stop)")
+            elif s > first and s % HEARTBEAT_SAY_S == 0:
+                self.say(f"still waiting for a heartbeat on {self.link.url} ({s} s)")
 
         hb = self.link.wait_heartbeat(timeout, idle=idle)
         self.seq = sequence_for(self.link.autopilot)

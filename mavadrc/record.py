@@ -2,8 +2,11 @@
 
     flight.tlog      every MAVLink frame both ways (8-byte big-endian Unix time in us + frame)
     controller.csv   one row per controller step (columns: :data:`COLUMNS`)
-    summary.json     controller, mission, duration and the error figures
-    mission.yaml     the mission as flown
+    summary.json     controller, mission, duration and the error figures; how the flight was
+                     made: the controller flown (controller_flown), the settings after every
+                     override (config), the command line, the versions, the vehicle's identity
+    mission.yaml     the mission file as given
+    effective.yaml   the mission as flown: every override applied, the gains resolved
     *.png            figures (see :mod:`mavadrc.figures`)
 
 Both the tlog and the table are flushed as they go, so a killed process leaves readable files.
@@ -111,12 +114,12 @@ class TableWriter:
             self._f = None
 
 
-def _finite(x):
+def finite(x):
     """``x`` with every non-finite float replaced by None (JSON has no NaN)."""
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
+        return {k: finite(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
+        return [finite(v) for v in x]
     if isinstance(x, (float, np.floating)):
         return float(x) if math.isfinite(x) else None
     if isinstance(x, np.integer):
@@ -202,7 +205,7 @@ class FlightRecord:
     def write_summary(self, summary):
         """summary.json, strict JSON: a NaN or an infinity is written as null."""
         tmp = self.folder / "summary.json.tmp"
-        tmp.write_text(json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
+        tmp.write_text(json.dumps(finite(summary), indent=2, sort_keys=True, allow_nan=False)
                        + "\n")
         os.replace(tmp, self.folder / "summary.json")
 

@@ -14,3 +14,18 @@ jit = njit(cache=True, nogil=True)
 #: observers, the TD, PID): inlined into their callers in numba's IR, so a control step costs no
 #: call layers (their off-nominal paths live in separate, not inlined, kernels).
 jit_inline = njit(cache=True, nogil=True, inline="always")
+
+
+def needs_compiling(*kernels):
+    """Whether calling these kernels will compile one: neither compiled in this process nor
+    found in numba's on-disk cache for the current source.  A cheap look (numba reads the
+    cache's index, a few kB); whatever it cannot tell counts as "will compile"."""
+    for k in kernels:
+        if not hasattr(k, "py_func") or getattr(k, "overloads", None):
+            continue  # plain Python (NUMBA_DISABLE_JIT), or compiled in this process already
+        try:
+            if not k._cache._cache_file._load_index():
+                return True
+        except Exception:  # another numba's internals: no way to tell cheaply
+            return True
+    return False

@@ -1,0 +1,205 @@
+"""Every command a newcomer tries ends in one clear line: exit 2 for a usage error (before
+anything starts), 130 for Ctrl-C, never a traceback nor a silent wait."""
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mavadrc.cli import main
+from mavadrc.embedded import free_udp_port
+from mavadrc.fly import fly
+from mavadrc.link import FlightError, LinkError
+from mavadrc.mission import load_mission
+
+ROOT = Path(__file__).resolve().parent.parent
+MISSIONS = ROOT / "configs" / "missions"
+
+
+def run_cli(argv, capsys):
+    code = main(argv)
+    err = capsys.readouterr().err
+    return code, [ln for ln in err.splitlines() if ln.strip()]
+
+
+def one_clear_line(lines, *words):
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("mavadrc "), lines
+    assert "Traceback" not in lines[0]
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--lockstep", "--wind", "gale"], ["gale", "no such wind"]),
+    (["--lockstep", "--seed", "-1"], ["--seed -1"]),
+    (["--timeout", "0"], ["--timeout 0", "positive"]),
+    (["--sysid", "300"], ["--sysid 300", "1 to 255"]),
+    (["--out", "README.md"], ["--out README.md", "is a file"]),
+    (["--out", "README.md/runs"], ["under README.md"]),
+    (["--connect", "udpin:0.0.0.0:999999"], ["--connect", "999999", "1 to 65535"]),
+    (["--connect", "udpin:0.0.0.0:14540", "--lockstep"], ["--lockstep"]),
+    (["--connect", "udpin:0.0.0.0:14540", "--seed", "3"], ["--seed", "--connect"]),
+    (["--connect", "udpin:0.0.0.0:14540", "--wind", "calm"], ["--wind", "--connect"]),
+    (["--signing-key", "/nonexistent/key"], ["--signing-key /nonexistent/key"]),
+])
+def test_fly_refuses_a_bad_option_in_one_line_before_starting_anything(options, words, capsys,
+                                                                        monkeypatch, tmp_path):
+    monkeypatch.chdir(ROOT)  # README.md is the file of the --out cases
+    out = [] if "--out" in options else ["--out", str(tmp_path / "runs")]
+    code, lines = run_cli(["fly", "hover", "--no-figures", "-q", *out, *options], capsys)
+    assert code == 2
+    one_clear_line(lines, *words)
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("vehicle, words", [
+    ("{mass: 2.0, max_thrust: 34}", ["mass and max_thrust", "--connect", "configs/vehicles"]),
+    ("{hover_thrust: 0.6}", ["hover_thrust", "--connect"]),
+])
+def test_a_real_vehicles_description_is_refused_for_the_bundled_vehicle(vehicle, words, capsys,
+                                                                         tmp_path):
+    """The bundled vehicle would fly the Crazyflie whatever mass and thrust the mission gave."""
+    path = tmp_path / "m.yaml"
+    path.write_text((MISSIONS / "hover.yaml").read_text().replace("vehicle: crazyflie",
+                                                                  f"vehicle: {vehicle}"))
+    assert f"vehicle: {vehicle}" in path.read_text()
+    code, lines = run_cli(["fly", str(path), "--lockstep", "--out", str(tmp_path / "runs")],
+                          capsys)
+    assert code == 2
+    one_clear_line(lines, *words)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_vehicle_that_dies_at_start_is_reported_at_once_with_its_words(tmp_path):
+    mission = load_mission(MISSIONS / "hover.yaml")
+    mission.autopilot = "nope"  # the vehicle's own argument check refuses it and exits
+    t0 = time.monotonic()
+    with pytest.raises(FlightError) as err:
+        fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+            stream=io.StringIO())
+    assert time.monotonic() - t0 < 30.0  # not the 120 s heartbeat wait (compiling included)
+    msg = str(err.value)
+    assert "exited" in msg and "invalid choice: 'nope'" in msg and "vehicle.log" in msg, msg
+    assert "File " not in msg  # the error line, not a traceback's frames
+    (folder,) = tmp_path.iterdir()  # kept: its vehicle.log says why
+    assert (folder / "vehicle.log").exists()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert "invalid choice" in summary["aborted"][0]
+
+
+def test_a_connect_that_hears_nothing_leaves_no_record_folder(tmp_path):
+    mission = load_mission(MISSIONS / "hover.yaml")
+    out = io.StringIO()
+    with pytest.raises(LinkError, match="no heartbeat"):
+        fly(mission, connect=f"udpin:127.0.0.1:{free_udp_port()}", out=tmp_path, timeout=1.5,
+            figures=False, progress=False, stream=out)
+    assert list(tmp_path.iterdir()) == []
+    assert "waiting for an autopilot's heartbeat on udpin:127.0.0.1:" in out.getvalue()
+
+
+def test_ctrl_c_while_waiting_for_a_heartbeat_is_one_line_and_exit_130(tmp_path):
+    port = free_udp_port()
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "fly", "hover", "--connect",
+                             f"udpin:127.0.0.1:{port}", "--out", str(tmp_path / "runs")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        # the wait is said at once, with the address waited on
+        t0 = time.monotonic()
+        line = ""
+        while "waiting for an autopilot's heartbeat" not in line:
+            line = proc.stdout.readline()
+            assert line and time.monotonic() - t0 < 60.0, "the wait was not said"
+        assert f"udpin:127.0.0.1:{port}" in line
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    one_clear_line(lines, "interrupted", f"udpin:127.0.0.1:{port}", "nothing flew")
+    assert "Traceback" not in out + err and "nan" not in out
+    assert not any((tmp_path / "runs").glob("*/*"))  # nothing flew: no record kept
+
+
+# --- mavadrc compare ------------------------------------------------------------------------------
+
+TINY = ROOT / "tests" / "data" / "tiny_experiment.yaml"
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--seeds", "0"], ["--seeds 0", "at least 1"]),
+    (["--workers", "0"], ["--workers 0", "at least 1"]),
+    (["--out", "README.md"], ["--out README.md", "is a file"]),
+])
+def test_compare_refuses_a_bad_option_in_one_line(options, words, capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    code, lines = run_cli(["compare", str(TINY), "-q", *options], capsys)
+    assert code == 2
+    one_clear_line(lines, *words)
+
+
+def test_compare_on_a_cluster_without_dask_says_what_to_install(capsys, monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+    code, lines = run_cli(["compare", str(TINY), "-q", "--out", str(tmp_path / "c"),
+                           "--scheduler", "tcp://127.0.0.1:8786"], capsys)
+    assert code == 2
+    one_clear_line(lines, "distributed", '.[cluster]')
+    assert not (tmp_path / "c").exists()
+
+
+def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
+    assert main(["compare", str(TINY), "--out", str(tmp_path), "--seeds", "1",
+                 "--no-figures"]) == 0
+    err = capsys.readouterr().err
+    bar_end = err.index("6/6 runs")
+    assert "writing the report" in err[bar_end:]
+
+
+def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
+    text = TINY.read_text()
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "compare", str(TINY), "--seeds",
+                             "200", "--workers", "2", "--out", str(tmp_path / "c")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        t0 = time.monotonic()
+        line = ""
+        while " runs, " not in line:  # the progress bar: the workers are running
+            line = proc.stderr.readline()
+            assert line and time.monotonic() - t0 < 120.0, "no progress line"
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130
+    lines = [ln for ln in err.splitlines() if ln.strip() and " runs, " not in ln]
+    one_clear_line(lines, "interrupted", "workers")
+    assert "Traceback" not in out + err
+    assert text  # the experiment is the shipped tiny one, untouched
+
+
+def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_path, monkeypatch):
+    from mavadrc.control._jit import needs_compiling
+
+    (tmp_path / "fresh_kernel_mod.py").write_text(
+        "from numba import njit\n\n@njit(cache=True)\ndef twice(x):\n    return 2.0 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import fresh_kernel_mod as mod
+
+    assert needs_compiling(mod.twice)  # never compiled, nothing on disk
+    assert mod.twice(1.5) == 3.0
+    assert not needs_compiling(mod.twice)  # compiled in this process
+    mod.twice.overloads.clear()
+    assert not needs_compiling(mod.twice)  # and in numba's on-disk cache
