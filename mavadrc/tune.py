@@ -200,6 +200,11 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
         res = differential_evolution(obj, limits, maxiter=maxiter, popsize=popsize, seed=seed,
                                      tol=1e-3, polish=False, updating="deferred",
                                      workers=mapper, callback=report, init="sobol")
+    except KeyboardInterrupt:
+        if pool is not None:  # the workers ignore SIGINT: drop what is queued, do not wait
+            pool.shutdown(wait=False, cancel_futures=True)
+            pool = None
+        raise
     finally:
         if pool is not None:
             pool.shutdown()
@@ -260,6 +265,9 @@ def main(args):
     except (ConfigError, OSError, ValueError) as exc:
         print(f"mavadrc tune: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("mavadrc tune: interrupted; nothing written", file=sys.stderr)
+        return 130
     text = controller_yaml(result)
     if args.out:
         with open(args.out, "w") as f:

@@ -190,6 +190,29 @@ def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     assert text  # the experiment is the shipped tiny one, untouched
 
 
+def test_ctrl_c_during_tune_ends_in_one_line_and_writes_nothing(tmp_path):
+    out = tmp_path / "tuned.yaml"
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "tune", str(TINY), "--controller",
+                             "PD", "--workers", "2", "--maxiter", "50", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        t0 = time.monotonic()
+        line = ""
+        while "generation" not in line:  # the search is running in its workers
+            line = proc.stderr.readline()
+            assert line and time.monotonic() - t0 < 180.0, "no generation line"
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130
+    assert "interrupted" in err and "Traceback" not in err
+    assert not out.exists()
+
+
 def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_path, monkeypatch):
     from mavadrc.control._jit import needs_compiling
 
