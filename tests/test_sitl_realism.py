@@ -327,7 +327,7 @@ def test_ardupilot_refuses_disarm_in_air_and_detects_landing_after_touchdown(ap_
     ArduCopter SITL).  Reported in EXTENDED_SYS_STATE."""
     srv, c, L = ap_lockstep({"GUID_OPTIONS": 8, "SIM_ARMING_DELAY": 0.0})
     hover = srv.vehicle.hover_thrust
-    t_arm = start_ap_guided_nogps(L, thrust=0.0)
+    start_ap_guided_nogps(L, thrust=0.0)
     L.run(0.5, thrust=0.0)
     assert L.landed_state() == ON_GROUND
     L.run(0.3, thrust=0.2 * hover)  # positive thrust, still on the ground
