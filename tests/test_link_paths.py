@@ -2,6 +2,7 @@
 path and on the lockstep MAVLink path: the same flight on both for the same seed, and what the
 link does to the flight."""
 
+import json
 import math
 import os
 from pathlib import Path
@@ -64,6 +65,10 @@ def test_the_fast_path_and_the_lockstep_wire_meet_the_same_link(exp, tmp_path):
     rec_fast, log = run_inprocess(exp, 1, 0, 0, keep_log=True)
     rec_wire, _ = run_mavlink(exp, 1, 0, 0, tmp_path)
     tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
+    # the flight's record says which link it flew through
+    summary = json.loads((Path(rec_wire["record_folder"]) / "summary.json").read_text())
+    assert summary["config"]["link"] == exp.scenarios[1].mission.link.as_dict()
+    assert summary["config"]["sensor_latency_s"] == 0.02
     pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
     assert len(pos) == len(log)
     assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
