@@ -104,27 +104,36 @@ def test_a_connect_that_hears_nothing_leaves_no_record_folder(tmp_path):
     assert "waiting for an autopilot's heartbeat on udpin:127.0.0.1:" in out.getvalue()
 
 
-def test_ctrl_c_while_waiting_for_a_heartbeat_is_one_line_and_exit_130(tmp_path):
-    port = free_udp_port()
-    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "fly", "hover", "--connect",
-                             f"udpin:127.0.0.1:{port}", "--out", str(tmp_path / "runs")],
+def interrupt_when(args, marker, stream="stderr", within=120.0):
+    """Run ``python -m mavadrc ARGS`` in a session of its own, send Ctrl-C (SIGINT to the whole
+    group, as a terminal does) once a line of ``stream`` contains ``marker``; returns (exit
+    status, stdout, stderr, the marker's line)."""
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, cwd=ROOT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        # the wait is said at once, with the address waited on
         t0 = time.monotonic()
         line = ""
-        while "waiting for an autopilot's heartbeat" not in line:
-            line = proc.stdout.readline()
-            assert line and time.monotonic() - t0 < 60.0, "the wait was not said"
-        assert f"udpin:127.0.0.1:{port}" in line
+        while marker not in line:
+            line = getattr(proc, stream).readline()
+            assert line and time.monotonic() - t0 < within, f"no line with {marker!r}"
         os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 130
+    return proc.returncode, out, err, line
+
+
+def test_ctrl_c_while_waiting_for_a_heartbeat_is_one_line_and_exit_130(tmp_path):
+    port = free_udp_port()
+    # the wait is said at once, with the address waited on
+    code, out, err, line = interrupt_when(
+        ["fly", "hover", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(tmp_path / "runs")],
+        "waiting for an autopilot's heartbeat", stream="stdout", within=60.0)
+    assert f"udpin:127.0.0.1:{port}" in line
+    assert code == 130
     lines = [ln for ln in err.splitlines() if ln.strip()]
     one_clear_line(lines, "interrupted", f"udpin:127.0.0.1:{port}", "nothing flew")
     assert "Traceback" not in out + err and "nan" not in out
@@ -167,23 +176,10 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
 
 def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     text = TINY.read_text()
-    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "compare", str(TINY), "--seeds",
-                             "200", "--workers", "2", "--out", str(tmp_path / "c")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-    try:
-        t0 = time.monotonic()
-        line = ""
-        while " runs, " not in line:  # the progress bar: the workers are running
-            line = proc.stderr.readline()
-            assert line and time.monotonic() - t0 < 120.0, "no progress line"
-        os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130
+    # the progress bar: the workers are running
+    code, out, err, _ = interrupt_when(["compare", str(TINY), "--seeds", "200", "--workers", "2",
+                                        "--out", str(tmp_path / "c")], " runs, ")
+    assert code == 130
     lines = [ln for ln in err.splitlines() if ln.strip() and " runs, " not in ln]
     one_clear_line(lines, "interrupted", "workers")
     assert "Traceback" not in out + err
@@ -192,23 +188,11 @@ def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
 
 def test_ctrl_c_during_tune_ends_in_one_line_and_writes_nothing(tmp_path):
     out = tmp_path / "tuned.yaml"
-    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "tune", str(TINY), "--controller",
-                             "PD", "--workers", "2", "--maxiter", "50", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-    try:
-        t0 = time.monotonic()
-        line = ""
-        while "generation" not in line:  # the search is running in its workers
-            line = proc.stderr.readline()
-            assert line and time.monotonic() - t0 < 180.0, "no generation line"
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130
+    # a generation line: the search is running in its workers
+    code, _, err, _ = interrupt_when(["tune", str(TINY), "--controller", "PD", "--workers", "2",
+                                      "--maxiter", "50", "--out", str(out)], "generation",
+                                     within=180.0)
+    assert code == 130
     assert "interrupted" in err and "Traceback" not in err
     assert not out.exists()
 
