@@ -55,6 +55,7 @@ __all__ = [
     "Waypoints",
     "Takeoff",
     "Land",
+    "Doublets",
     "Sequence",
     "by_name",
     "list_names",
@@ -534,6 +535,74 @@ class Land(Waypoints):
         durations = [MIN_JERK_PEAK * (mid[2] - start[2]) / speed,
                      MIN_JERK_PEAK * final_height / final_speed]
         super().__init__([start, mid, end], durations=durations, yaw=yaw)
+
+
+class Doublets(Trajectory):
+    """Acceleration doublets about a fixed point, one axis after the other: the excitation an
+    input model is identified from (:mod:`mavadrc.identify`).
+
+    On each axis in ``axes`` (0 north, 1 east, 2 down) the acceleration is ``repeats`` times the
+    pattern +A, -A, -A, +A, each held ``half_period`` s, then ``rest`` s of nothing before the
+    next axis.  Velocity and position are its exact integrals, so the reference comes back to
+    ``position`` after every doublet: the peak excursion is A half_period^2 and the peak
+    speed A half_period (1 m/s^2, 0.4 s: 0.16 m, 0.4 m/s).  A controller tracking it commands
+    the doublets as feed-forward, and its feedback has little to add.
+    """
+
+    PATTERN = (1.0, -1.0, -1.0, 1.0)
+
+    def __init__(self, position, amplitude=(1.0, 1.0, 1.0), half_period: float = 0.4,
+                 repeats: int = 2, rest: float = 1.0, axes=(0, 1, 2), yaw: float = 0.0):
+        self.position = _vector("Doublets", "position", position, 3)
+        amp = np.broadcast_to(np.asarray(amplitude, dtype=float), 3)
+        if not np.all(np.isfinite(amp)) or np.any(amp <= 0.0):
+            raise ValueError(f"Doublets: amplitude must be > 0 m/s^2, got {amplitude!r}")
+        hp = _number("Doublets", "half_period", half_period, positive=True)
+        rest = _number("Doublets", "rest", rest, nonneg=True)
+        self.yaw = _number("Doublets", "yaw", yaw)
+        if int(repeats) < 1:
+            raise ValueError(f"Doublets: repeats must be >= 1, got {repeats!r}")
+        # piecewise-constant acceleration: (start time, axis, value); velocity and position
+        # are zero at every piece that starts a doublet, so each piece starts from its own
+        # integrals, kept below
+        t, pieces = 0.0, []
+        self.windows = []  # (axis, t_start, t_end) of each axis's excitation and rest
+        for ax in axes:
+            t_ax = t
+            for _ in range(int(repeats)):
+                for sign in self.PATTERN:
+                    pieces.append((t, int(ax), sign * float(amp[int(ax)])))
+                    t += hp
+            pieces.append((t, int(ax), 0.0))
+            t += rest
+            self.windows.append((int(ax), t_ax, t))
+        self.duration = t
+        self._t = np.array([p[0] for p in pieces])
+        self._ax = np.array([p[1] for p in pieces])
+        self._a = np.array([p[2] for p in pieces])
+        self._v0 = np.zeros(len(pieces))
+        self._p0 = np.zeros(len(pieces))
+        for i in range(1, len(pieces)):
+            if self._ax[i] == self._ax[i - 1]:
+                d = self._t[i] - self._t[i - 1]
+                self._v0[i] = self._v0[i - 1] + self._a[i - 1] * d
+                self._p0[i] = self._p0[i - 1] + self._v0[i - 1] * d + 0.5 * self._a[i - 1] * d * d
+        # rounding aside, every axis ends back at rest at its start
+        self._v0[np.abs(self._v0) < 1e-12] = 0.0
+
+    def _eval(self, t):
+        n = t.shape[0]
+        i = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, len(self._t) - 1)
+        d = t - self._t[i]
+        pos = np.tile(self.position, (n, 1))
+        vel = np.zeros((n, 3))
+        acc = np.zeros((n, 3))
+        rows = np.arange(n)
+        ax = self._ax[i]
+        acc[rows, ax] = self._a[i]
+        vel[rows, ax] = self._v0[i] + self._a[i] * d
+        pos[rows, ax] += self._p0[i] + self._v0[i] * d + 0.5 * self._a[i] * d * d
+        return pos, vel, acc, np.full(n, self.yaw), np.zeros(n)
 
 
 # --------------------------------------------------------------------------- sequence
