@@ -23,6 +23,12 @@ def _fly(args):
     return fly.main(args)
 
 
+def _identify(args):
+    from . import identify
+
+    return identify.main(args)
+
+
 def _compare(args):
     from . import compare
 
@@ -86,6 +92,33 @@ def build_parser():
                         "vehicle is started with the same key)")
     f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     f.set_defaults(func=_fly)
+    i = sub.add_parser("identify", help="measure a vehicle's input model (how late it produces "
+                                        "a commanded acceleration) in a short flight",
+                       description="Take off, fly small acceleration doublets at hover on the "
+                                   "safe default gains, fit a lag plus dead time per axis, land; "
+                                   "write the result as a controller section (input_lag).")
+    i.add_argument("mission", nargs="?", default="hover",
+                   help="mission YAML whose vehicle, rate and limits are used (default: hover)")
+    i.add_argument("--connect", default=None,
+                   help="identify a vehicle at this MAVLink URL instead of the bundled one")
+    i.add_argument("--write", default=None, metavar="FILE",
+                   help="the YAML to write (default: input_model.yaml in the record folder)")
+    i.add_argument("--altitude", type=float, default=1.0,
+                   help="hover altitude for the doublets (m, default 1)")
+    i.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
+    i.add_argument("--lockstep", action="store_true",
+                   help="bundled vehicle only: run as fast as the machine allows")
+    i.add_argument("--seed", type=int, default=None, help="bundled vehicle's wind/noise seed")
+    i.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
+    i.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
+    i.add_argument("--timeout", type=float, default=None,
+                   help="wall-clock seconds for the whole flight")
+    i.add_argument("--sysid", type=int, default=None,
+                   help="the autopilot's system id (default: the first heard)")
+    i.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing secret file (as for fly)")
+    i.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
+    i.set_defaults(func=_identify)
     c = sub.add_parser("compare", help="run an experiment (scenarios x controllers x seeds) and "
                                        "write its report")
     c.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")

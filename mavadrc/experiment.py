@@ -345,7 +345,8 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T,
                             L_THRUST, L_YAW, fly_inprocess)
 
-    m = exp.mission(i, j, spec)
+    from .identify import with_identified
+    m = with_identified(exp.mission(i, j, spec), exp.controllers[j].kind, seed)
     t0 = time.perf_counter()
     r = fly_inprocess(m, kind=exp.controllers[j].kind, seed=seed)
     wall = time.perf_counter() - t0
@@ -367,10 +368,12 @@ def run_mavlink(exp, i, j, seed, out_dir):
     from .inprocess import MISSION_START
     from .record import read_table
 
-    m = exp.mission(i, j)
+    from .identify import with_identified
     kind = exp.controllers[j].kind
     if kind == "oracle":
         raise ValueError("the oracle needs the simulator's internals: it runs in process only")
+    # identified as on the fast path (same flight, same fit), so both paths fly the same gains
+    m = with_identified(exp.mission(i, j), kind, seed)
     t0 = time.perf_counter()
     summary, folder = fly(m, kind=kind, out=str(out_dir), lockstep=True, seed=seed,
                           figures=False, progress=False, stream=io.StringIO(),
@@ -418,6 +421,8 @@ def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, 
 
         rec["delay_margin_s"] = spec_margin(m.controller, c.kind, m.vehicle or "crazyflie",
                                             m.attitude_controller)
+    if m.identification is not None:  # input_lag: auto, as identified on the vehicle
+        rec["input_lag_identified"] = list(m.identification["input_lag"])
     rec["wall_s"] = wall
     return rec
 

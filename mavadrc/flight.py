@@ -49,7 +49,10 @@ from .failsafe import Failsafes
 from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
-from .margin import delay_margin, margin_record
+from .control import kernels as K
+from .control.position import IN_STATE
+from .identify import MAX_DELAY_S, failure_text, fit, needs_identification, summary_line
+from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .supervisor import GIVE_UP, LAND, Supervisor
@@ -102,13 +105,14 @@ def default_gains(kind, input_model=False):
     return {"wc": (2.5, 2.5, 3.0)}
 
 
-def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4"):
+def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
     that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
     ``input_lag``), the observer's bandwidth derived from the controller's where only that is
-    given, and ``input_lag: auto`` measured.  Given as a mission's controller, they fly the same
-    controller again."""
+    given, and ``input_lag: auto`` replaced by the lags ``identified`` on the vehicle
+    (:mod:`mavadrc.identify`).  Given as a mission's controller, they fly the same controller
+    again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
     given = dict(spec.gains) if kind == spec.kind else {}
     if kind in ("ladrc", "adrc") and "input_lag" in spec.gains:
@@ -123,20 +127,19 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4"):
         ratio = 5.0 if told else SAFE_WO / SAFE_WC
         gains["wo"] = tuple(ratio * float(w) for w in given["wc"])
     if gains.get("input_lag") == "auto":
-        if vehicle is None:
-            raise FlightError("input_lag: auto needs the mission's vehicle file (vehicle: NAME); "
-                              "otherwise give the lags in seconds")
-        from sim.vehicle import response_time_constants
-        tau_xy, tau_z = response_time_constants(vehicle, attitude_controller)
-        gains["input_lag"] = (tau_xy, tau_xy, tau_z)
+        if identified is None:
+            raise FlightError("input_lag: auto is measured on the vehicle flown: in flight (the "
+                              "mission flies an identify segment after its takeoff), by "
+                              "mavadrc.identify.with_identified on the fast path, or by "
+                              "`mavadrc identify`; otherwise give the lags in seconds")
+        gains["input_lag"] = tuple(float(x) for x in identified)
     return gains
 
 
 def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
                     vehicle=None, attitude_controller="px4", rate_hz=None, gains=None):
-    """The position controller of a mission's controller spec.  ``vehicle`` (a bundled vehicle
-    name or file) resolves ``input_lag: auto`` by measuring that vehicle's response
-    (:func:`sim.vehicle.response_time_constants`); ``rate_hz`` overrides the spec's rate;
+    """The position controller of a mission's controller spec (``input_lag: auto`` resolved
+    before: :func:`mavadrc.identify.with_identified`); ``rate_hz`` overrides the spec's rate;
     ``gains``: those of :func:`resolve_gains`, already resolved."""
     kind = kind or spec.kind
     gains = dict(gains if gains is not None else
@@ -202,6 +205,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def __init__(self, mission, link, record, *, kind=None, hover_thrust=None, progress=True,
                  out=sys.stdout, max_wall_s=None, heartbeat_timeout=15.0, lockstep=False,
                  start_at=None, takeover=False, hover_source=None, bundled=None, watchdog=None):
+        kind = kind or mission.controller.kind
+        if needs_identification(mission.controller, kind):
+            mission = mission.with_identification()
         self.m = mission
         self.link = link
         self.rec = record
@@ -250,6 +256,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.ages = []
         self.ctrl = None
         self.gains = None  # the controller's gains, resolved (resolve_gains)
+        # input_lag: auto: the fit of the identify segment (mavadrc.identify); until it is
+        # made, the safe default LADRC flies
+        self.identification = None
+        self._id_windows = None
+        self._id_data = []
         self.summary = None
         self.context = {}  # what the caller adds to the record (command line, versions, ...)
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
@@ -348,17 +359,71 @@ class Flight(Preflight, GroundPhases, Failsafes):
             raise FlightError(self._error)
         return self.summary
 
-    def _make_controller(self, hover):
+    def _identifying(self):
+        """Whether the input model is still to be identified (or could not be: then the safe
+        defaults fly the whole mission)."""
+        if not needs_identification(self.m.controller, self.kind):
+            return False
+        return self.identification is None or "input_lag" not in self.identification
+
+    def _controller_flown(self):
+        """(kind, gains) flown now: the mission's, or, while the input model is identified, the
+        safe default LADRC (:data:`SAFE_WC`, no input model)."""
+        if self._identifying():
+            return "ladrc", default_gains("ladrc", False)
         if self.gains is None:
-            self.gains = resolve_gains(self.m.controller, self.kind, self.m.vehicle,
-                                       self.m.attitude_controller)
-        ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=self.kind,
-                               rate_hz=self.rate, gains=self.gains)
+            self.gains = resolve_gains(
+                self.m.controller, self.kind,
+                identified=self.identification["input_lag"] if self.identification else None)
+        return self.kind, self.gains
+
+    def _make_controller(self, hover):
+        kind, gains = self._controller_flown()
+        ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=kind,
+                               rate_hz=self.rate, gains=gains)
         self.delay_margin = delay_margin(ctrl)
         ctrl.reset(np.zeros(3))
         ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         ctrl.reset()
         return ctrl
+
+    def _in_doublets(self, time_boot_ms, after=1.0):
+        """Whether vehicle time ``time_boot_ms`` falls in the identify segment (or ``after`` s
+        past it: the tilt there is still the doublets', not a limit cycle)."""
+        if self._id_windows is None:
+            return False
+        t = time_boot_ms / 1000.0 - self._mission_t0
+        return (min(w[1] for w in self._id_windows) <= t
+                <= max(w[2] for w in self._id_windows) + after)
+
+    def _identify_step(self, s, t):
+        """Keep the samples of the identify segment; at its end fit the input model and fly
+        the mission's controller with it from the next sample on."""
+        if self._id_windows is None or self.identification is not None:
+            return
+        start = min(w[1] for w in self._id_windows) - MAX_DELAY_S - 0.1
+        end = max(w[2] for w in self._id_windows)
+        if t >= start:
+            self._id_data.append((t, *self.ctrl.accel_applied, *s.vel))
+        if t < end:
+            return
+        d = np.asarray(self._id_data)
+        rec = fit(d[:, 0], d[:, 1:4], d[:, 4:7], self._id_windows)
+        rec["flown"] = f"in flight, on system {self.link.target_system} ({self.link.autopilot})"
+        self.identification = rec
+        self._id_data = []
+        self.say(f"input model identified: {summary_line(rec)}")
+        why = failure_text(rec)
+        if why is not None:
+            self._warn_once("identify", f"{why}: the safe default LADRC flies the rest of the "
+                                        "mission", every=0.0)
+            return
+        old = self.ctrl
+        self.ctrl = self._make_controller(self.hover)
+        carry_over(self.ctrl, old, s.pos, s.vel)
+        lag = ", ".join(f"{x:.3f}" for x in rec["input_lag"])
+        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s from here; "
+                 f"{margin_text(self.delay_margin)}")
 
     # --- the loop ------------------------------------------------------------------------------
 
@@ -421,7 +486,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                     self.ages.append(s.age)
         elif t == "ATTITUDE":
             self.yaw = msg.yaw
-            if self.phase in ("mission", "touchdown"):
+            if self.phase in ("mission", "touchdown") and not self._in_doublets(msg.time_boot_ms):
                 self._attitudes.append((msg.time_boot_ms / 1000.0, msg.roll, msg.pitch))
             self.cos_tilt = math.cos(msg.roll) * math.cos(msg.pitch)
             self.recorder.attitude(msg.time_boot_ms, msg.yaw)
@@ -560,6 +625,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
         q, thrust = self._control_step(s, r)
+        self._identify_step(s, t)
         self._descent_history(s)
         if not self._lifted:
             if lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
@@ -567,7 +633,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
             else:
                 self.ctrl.hold_disturbance()  # on the ground: the ground's push is no disturbance
         self.steps += 1
-        self.recorder.step(t, self._segment_name(t), r, s, self.ctrl, q, thrust)
+        # the identification is not the mission: its doublets, flown on the safe gains, are
+        # logged but not scored
+        self.recorder.step(t, self._segment_name(t), r, s, self.ctrl, q, thrust,
+                           scored=not self._in_doublets(s.t * 1000.0, after=0.0))
         self._named_values(s)
         self._check_link()
         why = self.supervisor.breach(s, self.origin)
@@ -669,13 +738,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def controller_record(self):
         """The controller flown as a mission's ``controller:`` section (:func:`controller_record`);
         None if the gains could not be resolved."""
-        if self.gains is None:
-            try:
-                self.gains = resolve_gains(self.m.controller, self.kind, self.m.vehicle,
-                                           self.m.attitude_controller)
-            except Exception:
-                return None
-        return controller_record(self.m.controller, self.kind, self.gains)
+        try:
+            kind, gains = self._controller_flown()
+        except Exception:
+            return None
+        return controller_record(self.m.controller, kind, gains)
 
     def _named_values(self, s):
         """The observers' disturbance estimates at 10 Hz, live, for a ground station."""
@@ -750,6 +817,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         }
         if self.ctrl is not None:
             summary["delay_margin_s"] = margin_record(self.delay_margin)
+        if self.identification is not None:
+            summary["identification"] = self.identification
         if self._attitudes:
             a = np.asarray(self._attitudes)
             osc = attitude_oscillation(a[:, 0], a[:, 1], a[:, 2])
@@ -772,6 +841,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
         self.rec.write_summary(summary)
         return summary
+
+def carry_over(ctrl, old, pos, vel):
+    """Start ``ctrl`` where ``old`` left off: at the measured ``pos``/``vel``, with ``old``'s
+    disturbance estimates and the acceleration it last commanded as the input model's state
+    (a controller made anew mid-flight then takes over without a jump)."""
+    ctrl.reset(pos, vel)
+    ctrl._S[:, K.S_Z3] = old._S[:, K.S_Z3]
+    ctrl._IN[:, IN_STATE] = old.accel_applied
+
 
 def controller_record(spec, kind, gains):
     """A mission's ``controller:`` section that flies the controller flown: its kind, rate,

@@ -90,12 +90,6 @@ def real_vehicle_notices(mission):
         notes.append("wind: ignored with --connect (the bundled vehicle's wind)")
     if mission.sim_given:
         notes.append("sim: ignored with --connect (the bundled vehicle's settings)")
-    if mission.controller.gains.get("input_lag") == "auto":
-        raise UsageError(
-            "input_lag: auto measures a bundled vehicle's response; against a connected "
-            "vehicle give the lags in seconds per axis (controller: {input_lag: [x, y, z]}; "
-            "measured: ArduCopter's default quad ~[0.16, 0.16, 0.05], PX4 SIH's quad "
-            "~[0.2, 0.2, 0.05])")
     hover = None if mission.vehicle is not None else mission.hover_thrust
     return notes, hover
 

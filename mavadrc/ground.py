@@ -13,6 +13,7 @@ import numpy as np
 
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
+from .identify import windows_in
 from .margin import margin_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
@@ -167,6 +168,8 @@ class GroundPhases:
         if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
             self.ctrl.reset(s.pos)
         self._grid = None
+        if self._identifying():
+            self._id_windows = windows_in(self.phases)
         self._mission_t0 = s.t
         self.mission_start = s.t
         self._lifted = self.takeover_in_air

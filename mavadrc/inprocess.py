@@ -353,8 +353,11 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     """
     kind = kind or mission.controller.kind
     oracle = kind == "oracle"
-    spec = mission.controller
     seed = mission.seed if seed is None else seed
+    if kind != "oracle":
+        from .identify import with_identified
+        mission = with_identified(mission, kind, seed)  # input_lag: auto, measured first
+    spec = mission.controller
     wind = mission.wind if wind is None else wind
     options = {"yaw": math.radians(mission.heading_deg),
                # the thrust curve the mission's autopilot linearises with, as the server's
@@ -376,8 +379,7 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "
                          f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
-    ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
-                           vehicle=v.params, attitude_controller=mission.attitude_controller)
+    ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind)
     # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START.  The
     # samples of the last ``lag`` periods before the arming are what the companion gets in the
     # first ``lag`` periods after it (the sensor latency); the mission's origin is the first

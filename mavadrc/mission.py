@@ -33,7 +33,8 @@ KINDS = ("adrc", "ladrc", "pd", "pid")
 #: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
 FINAL_HEIGHT = 0.5
 FINAL_SPEED = 0.3
-SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named")
+SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named",
+            "identify")
 
 
 @dataclass
@@ -89,6 +90,24 @@ class Mission:
     settle_s: float = 0.0  # errors are also reported after this mission time
     out: str = "runs"
     transit_speed: float = 1.0
+    #: ``input_lag: auto`` resolved before flying (mavadrc.identify.with_identified): the fit
+    identification: dict = None
+
+    def with_identification(self):
+        """This mission with an ``identify`` segment (the doublets :mod:`mavadrc.identify`
+        fits the input model on) right after its takeoff, unless it has one already; the
+        settling time moves by the segment's duration."""
+        import copy
+        if any(kind == "identify" for kind, _, _ in self.segments):
+            return self
+        from .identify import doublets
+        m = copy.copy(self)
+        at = next((i + 1 for i, (kind, _, _) in enumerate(self.segments) if kind == "takeoff"),
+                  0)
+        m.segments = self.segments[:at] + [("identify", {}, None)] + self.segments[at:]
+        if m.settle_s > 0.0:  # the mission's own timeline begins that much later
+            m.settle_s += doublets(np.zeros(3)).duration
+        return m
 
     @property
     def ends_landed(self):
@@ -185,6 +204,10 @@ def _segment(kind, s, here, m):
         pts = [here] + [_ned(*p) for p in s["points"]]
         return [(T.Waypoints(pts, speed=s["speed"], yaw=_yaw(s, None), dwell=s.get("dwell", 0.0)),
                  "waypoints")]
+    if kind == "identify":
+        from .identify import AMPLITUDE, doublets
+        return [(doublets(here, yaw=_yaw(s), amplitude=s.get("amplitude", AMPLITUDE)),
+                 "identify")]
     if kind == "named":
         over = dict(s.get("params", {}))
         traj = T.by_name(s["name"], **over)
@@ -261,10 +284,11 @@ _SEG_KEYS = {
     "waypoints": {"points": "points", "speed": "pos", "dwell": "nonneg", "yaw_deg": "num",
                   "yaw": "tangent"},
     "named": {"name": "str", "params": "map", "duration": "pos"},
+    "identify": {"amplitude": "pos", "yaw_deg": "num"},
 }
 #: the largest value a segment key may take: sizes, speeds and durations a multirotor mission
 #: can mean (a typo such as a 1e9 s hover is refused before anything is computed)
-_MAX = {"altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
+_MAX = {"amplitude": 3.0, "altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
         "period": 3600.0, "dwell": 3600.0, "laps": 1000.0, "z0": 1000.0, "omega": 10.0,
         "climb": 10.0, "climb_rate": 10.0}
 _REQUIRED = {

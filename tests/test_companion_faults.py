@@ -428,13 +428,6 @@ def test_with_connect_the_hover_thrust_is_the_autopilots(tmp_path):
     assert summary["sources"]["hover_thrust"] == "the vehicle's MPC_THR_HOVER"
 
 
-def test_with_connect_input_lag_auto_is_refused_before_anything_is_sent(tmp_path):
-    mission = load_mission("configs/missions/thesis_spiral_wind.yaml")
-    with pytest.raises(UsageError, match="input_lag: auto"):
-        fly(mission, connect="udpin:127.0.0.1:14999", out=tmp_path, stream=io.StringIO())
-    assert not any(tmp_path.iterdir())
-
-
 def test_ardupilot_angle_boost_is_divided_out(tmp_path, monkeypatch):
     """ArduCopter GUIDED multiplies the thrust of SET_ATTITUDE_TARGET by 1/cos(lean angle)
     (ATC_ANGLE_BOOST, default 1): sent as computed, the vehicle climbs in every turn.  PD (no

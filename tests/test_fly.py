@@ -37,7 +37,7 @@ def fly_quiet(mission, tmp_path, **kw):
 # --- error bounds per controller and mission ----------------------------------------------------
 
 BOUNDS = {  # max 3-D error after the settling window (m)
-    # ladrc flies the mission's tuned gains and measured input model (0.036 m); adrc and pd
+    # ladrc flies the mission's tuned gains and the input model identified in flight; adrc and pd
     # their defaults, adrc with the mission's input model (the fast defaults)
     "thesis_spiral_wind": {"ladrc": 0.05, "adrc": 0.12, "pd": 0.5},
     # a PD mission with no input model: the observers fly the safe defaults (wc 1, wo 4;
