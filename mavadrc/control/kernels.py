@@ -466,13 +466,23 @@ def _channel_step(s, p, y, ydot, r, rdot, rddot, h):
     if s[S_INIT] == 0.0:
         channel_init(s, y, r, rdot)
     kind = p[P_KIND]
-    b0 = p[P_B0]
     if kind == KIND_LADRC:
         leso_step(s, p, y, h)
+    elif kind == KIND_HAN:
+        nleso_step(s, p, y, h)
+    return _law(s, p, y, ydot, r, rdot, rddot, h)
+
+
+@jit_inline
+def _law(s, p, y, ydot, r, rdot, rddot, h):
+    """The control law of a channel on its estimates (the observer has run): u0, u = the limited
+    command, kept in S_U0 and S_U."""
+    kind = p[P_KIND]
+    b0 = p[P_B0]
+    if kind == KIND_LADRC:
         u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_HAN:
-        nleso_step(s, p, y, h)
         if p[P_TD] != 0.0:
             td_step(s, p, r, h)
         else:
