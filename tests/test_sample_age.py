@@ -11,7 +11,8 @@ Claims proved here:
   is close to it;
 * a loop that goes unstable on a delay it is not told of settles when told it;
 * the mission file's ``latency`` and the controller's check it;
-* the lockstep MAVLink flight measures the same ages and flies the same flight as the fast path.
+* the lockstep MAVLink flight measures the same ages and flies the same flight as the fast path;
+* the delay margin of a compensating controller is the delay it is not told of.
 """
 
 import math
@@ -29,6 +30,7 @@ from mavadrc.control.channels import han_params, ladrc_params  # noqa: E402
 from mavadrc.experiment import experiment_from_text, run_inprocess, run_mavlink  # noqa: E402
 from mavadrc.flight import make_controller  # noqa: E402
 from mavadrc.inprocess import L_POS, L_T  # noqa: E402
+from mavadrc.margin import delay_margin  # noqa: E402
 from mavadrc.mission import ControllerSpec  # noqa: E402
 from mavadrc.record import read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
@@ -209,3 +211,21 @@ def test_the_lockstep_flight_measures_the_ages_the_fast_path_knows(tmp_path):
     ages = np.asarray(tab["sample_age"], dtype=float)
     ages = ages[np.isfinite(ages) & (np.asarray(tab["t"]) > 0.5)]
     assert ages.min() >= 0.04 - 1e-9 and ages.max() > 0.06  # 40 ms + 0..40 ms of jitter
+
+
+def test_the_delay_margin_of_a_compensating_controller_is_the_delay_it_is_not_told_of():
+    """The tuned spiral LADRC: 48 ms of margin on the plant it assumes; on 40 ms of delay it is
+    not told of, 8 ms; told it (measured, or given as its latency), it keeps 40 ms."""
+    gains = {"wc": (4.0, 4.0, 4.25), "wo": (23.9, 23.9, 25.4), "input_lag": "auto"}
+
+    def ctrl(**more):
+        return make_controller(ControllerSpec(kind="ladrc", rate_hz=250.0,
+                                              gains={**gains, **more}),
+                               hover_thrust=0.5, vehicle="crazyflie")
+
+    blind, measured, given = ctrl(), ctrl(latency="auto"), ctrl(latency=0.04)
+    assert delay_margin(blind) == pytest.approx(delay_margin(measured))
+    assert delay_margin(blind) > 0.04
+    assert delay_margin(blind, delay=0.04) < 0.01
+    assert delay_margin(measured, delay=0.04) >= 0.035
+    assert delay_margin(given) == pytest.approx(delay_margin(measured, delay=0.04))
