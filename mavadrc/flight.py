@@ -115,9 +115,12 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
     given = dict(spec.gains) if kind == spec.kind else {}
-    if kind in ("ladrc", "adrc") and "input_lag" in spec.gains:
-        # the vehicle's response, not a gain: it holds for any observer flown on it
-        given.setdefault("input_lag", spec.gains["input_lag"])
+    if kind in ("ladrc", "adrc"):
+        # the vehicle's response and the samples' age, not gains: they hold for any observer
+        # flown on it
+        for key in ("input_lag", "latency"):
+            if key in spec.gains:
+                given.setdefault(key, spec.gains[key])
     lag = given.get("input_lag")
     told = lag == "auto" or (lag is not None and any(float(v) > 0.0 for v in lag))
     gains = default_gains(kind, told)  # the mission's gains, where given, override these
@@ -254,6 +257,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._answered_t = None
         self.latency = []
         self.ages = []
+        self._attitude_ms = None  # the newest ATTITUDE's time_boot_ms
         self.ctrl = None
         self.gains = None  # the controller's gains, resolved (resolve_gains)
         # input_lag: auto: the fit of the identify segment (mavadrc.identify); until it is
@@ -475,6 +479,12 @@ class Flight(Preflight, GroundPhases, Failsafes):
             now = time.monotonic()
             if not self.lockstep:
                 s.age = self.link.timesync.age(msg.time_boot_ms)
+            elif self._attitude_ms is not None:
+                # in lockstep the vehicle's clock stands still, at the period whose messages
+                # come, until we answer: its ATTITUDE (every period, right after the position
+                # sample, no link model on it) says the last period's time
+                now_s = self._attitude_ms / 1000.0 + self.h
+                s.age = max(0, round((now_s - s.t) / self.h)) * self.h
             self.last = s
             self.samples_seen += 1
             self._last_sample_wall = now
@@ -486,6 +496,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                     self.ages.append(s.age)
         elif t == "ATTITUDE":
             self.yaw = msg.yaw
+            self._attitude_ms = msg.time_boot_ms
             if self.phase in ("mission", "touchdown") and not self._in_doublets(msg.time_boot_ms):
                 self._attitudes.append((msg.time_boot_ms / 1000.0, msg.roll, msg.pitch))
             self.cos_tilt = math.cos(msg.roll) * math.cos(msg.pitch)
@@ -596,8 +607,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return Reference(pos[i], vel[i], acc[i], float(yaw[i]), float(yaw_rate[i]))
         return self.traj.sample(t)
 
+    def _lead(self, s):
+        """How far past sample ``s``'s time the controller carries its estimate, to where its
+        command acts (the sample's age, as its ``latency`` says; 0: not compensated): the
+        reference it flies to is taken there."""
+        age = self.ctrl.sample_age(s.age)
+        return age if age == age else 0.0
+
     def _control_step(self, s, r, hold=False):
-        """One control step on sample ``s`` towards reference ``r`` (``hold``: stay where the
+        """One control step on sample ``s`` towards reference ``r`` (for the time the
+        controller's estimate is carried to, :meth:`_lead`; ``hold``: stay where the
         reference was when the hold began); sends the setpoint, returns (q, thrust)."""
         if hold:
             if self._hold_point is None:
@@ -606,9 +625,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
                     self.ctrl.reset(s.pos, s.vel)
             z3 = np.zeros(3)
             q, thrust = self.ctrl.update(s.pos, s.vel, self._hold_point, z3, z3, self.yaw,
-                                         dt=s.dt)
+                                         dt=s.dt, age=s.age)
         else:
-            q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw, dt=s.dt)
+            q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw, dt=s.dt,
+                                         age=s.age)
         self._send(s.t, q, thrust * self.seq.thrust_factor(self))
         return q, thrust
 
@@ -619,12 +639,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._left_control():
             return
         t = s.t - self._mission_t0
-        r = self._reference(t)
+        r = self._reference(t)  # the sample's: what its error is scored against
+        lead = self._lead(s)
+        rc = r if lead == 0.0 else self._reference(t + lead)
         if self._yaw_offset != 0.0:
             step = YAW_RATE * (s.dt if s.dt is not None else self.h)
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
-        q, thrust = self._control_step(s, r)
+            rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
+        q, thrust = self._control_step(s, rc)
         self._identify_step(s, t)
         self._descent_history(s)
         if not self._lifted:

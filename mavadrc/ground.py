@@ -187,7 +187,10 @@ class GroundPhases:
         pos, vel, acc = touchdown_reference(self._descent_from, speed, tau)
         r = Reference(pos, vel, acc, self._final_yaw, 0.0)
         t = s.t - self._mission_t0
-        q, thrust = self._control_step(s, r)
+        lead = self._lead(s)
+        rc = r if lead == 0.0 else Reference(
+            *touchdown_reference(self._descent_from, speed, tau + lead), self._final_yaw, 0.0)
+        q, thrust = self._control_step(s, rc)
         self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
         self._descent_history(s)
         # settled: hardly moving vertically while the reference goes on down below it

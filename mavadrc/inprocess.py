@@ -155,8 +155,9 @@ def _period(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, nois
 @jit
 def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_ext,
                 tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, xm, noise, sig, k0, k_end,
-                delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, refs, Sc, Pc,
-                Mc, INc, oracle, limits, max_gap, origin, rules, lifted, yaw_offset, log):
+                delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, refs, crefs, Sc,
+                Pc, Mc, INc, latency, oracle, limits, max_gap, origin, rules, lifted, yaw_offset,
+                log):
     """Fly the mission from period ``k0`` (periods count from the arming) to at most ``k_end``.
 
     Each period ``k``: the vehicle takes its sample of its estimate ``xm`` (the truth ``x``
@@ -165,8 +166,12 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     periods before the arming); if the companion gets one now (``delivered[k]`` = the period
     ``s`` it was taken, -1: none) it runs a control step on row ``s`` (data of period
     ``s - lag``: the sensor latency, at the sample's time ``stimes[s]``, mission time from
-    ``t0``; the interval since the last sample it got), the
-    reference of ``refs`` row by row (N, 10: pos, vel, acc, yaw), and makes a setpoint (float32,
+    ``t0``; the interval since the last sample it got; its age, ``k - s`` periods, as the
+    controller's ``latency`` says: NaN not compensated, < 0 the age measured, else that many
+    seconds), the
+    reference of ``crefs`` row by row (N, 10: pos, vel, acc, yaw; for the sample's time, or
+    with the age compensated for now; ``refs``: for the sample's time, the one logged and
+    scored), and makes a setpoint (float32,
     into ``spq``/``spt`` at ``k``); the vehicle applies setpoint ``applied[k]`` if one arrives
     (-1: keeps the last) and runs ``per`` physics steps.  ``limits`` = [north lo, hi, east lo,
     hi, altitude lo, hi, max speed] relative to ``origin``; ``max_gap``: the longest interval
@@ -199,9 +204,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             for i in range(3):
                 pos[i] = spos[d, i]
                 vel[i] = svel[d, i]
-                rpos[i] = refs[j, i]
-                rvel[i] = refs[j, 3 + i]
-                racc[i] = refs[j, 6 + i]
+                rpos[i] = crefs[j, i]
+                rvel[i] = crefs[j, 3 + i]
+                racc[i] = crefs[j, 6 + i]
             phys.disturbance_accel_into(x, omega, pv, v_wind, f_ext, tau_ext, dist, xdot)
             if oracle:
                 for i in range(3):
@@ -212,8 +217,12 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             prev = t
             if yaw_offset != 0.0:
                 yaw_offset -= max(-rules[2] * hc, min(rules[2] * hc, yaw_offset))
-            yaw_ref = refs[j, 9] + yaw_offset
-            ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc)
+            yaw_ref = crefs[j, 9] + yaw_offset
+            age = latency
+            if latency < 0.0:
+                age = (k - s) * Pc[0, K.P_H]
+            ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc,
+                                 age)
             if not lifted:
                 if _lifted(pos, vel, origin, rules):
                     lifted = True
@@ -222,7 +231,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             row = log[j]
             row[L_T] = t
             for i in range(3):
-                row[L_REF + i] = rpos[i]
+                row[L_REF + i] = refs[j, i]
                 row[L_POS + i] = pos[i]
                 row[L_VEL + i] = vel[i]
                 row[L_ACC_CMD + i] = out[G.NO + i]
@@ -232,7 +241,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             for i in range(4):
                 row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
             row[L_YAW] = syaw[d]
-            row[L_REF_YAW] = yaw_ref
+            row[L_REF_YAW] = refs[j, 9] + yaw_offset
             for i in range(3):
                 row[L_REF_ACC + i] = refs[j, 6 + i]
             j += 1
@@ -447,11 +456,21 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     # carries it, the reference as the flight reads it (the grid of control periods, or an
     # exact sample off the grid)
     got = delivered[sent:]
+    at = np.nonzero(got >= 0)[0] + sent  # the periods they come in
     got = got[got >= 0]
     times = stimes[got] - t0
     done = np.nonzero(times >= traj.duration)[0]
     rows_max = int(done[0]) + 1 if done.size else times.size
     ref = _references(traj, times[:rows_max], h)
+    # the controller's reference: for now when it compensates the samples' age
+    latency = math.nan if ctrl.latency is None else (-1.0 if ctrl.latency == "auto"
+                                                     else ctrl.latency)
+    if latency != latency:
+        cref = ref
+    else:
+        now = times[:rows_max] + ((at[:rows_max] - got[:rows_max]) * h if latency < 0.0
+                                  else latency)
+        cref = _references(traj, now, h)
     log = np.full((rows_max, NLOG), math.nan)
     sf = mission.safety
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
@@ -462,8 +481,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     rows, status, flown = closed_loop(
         *state, packed.params, packed.state, eta[sent * per:], *wind_out, dt, v.tick, *timing,
         xm, noise[sent * per:], sig, sent, n, delivered, applied, lag, stimes, t0, spos, svel,
-        syaw, spq, spt, ref, ctrl._S, Pc, Mc, ctrl._IN, oracle, limits, sf.max_gap_s, origin,
-        GROUND_RULES, False, yaw_offset, log)
+        syaw, spq, spt, ref, cref, ctrl._S, Pc, Mc, ctrl._IN, latency, oracle, limits,
+        sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset, log)
     v.ran(flown * per)
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
 

@@ -16,6 +16,13 @@ and the tilt limit bound its amplitude).
 ``delay_margin(ctrl)`` judges a controller on the plant it believes in (its own input model, no
 delay): the extra lag and delay a vehicle may add before the loop oscillates.
 ``delay_margin(ctrl, tau=0.25, delay=0.05)`` judges it on a given plant.
+
+A controller that compensates the samples' age (``latency``) is closed with its delay line: it
+knows ``age`` seconds of the plant's delay (its ``latency`` in seconds; measured, ``auto``: all
+of ``delay``) and carries its estimate over them.  Its margin is then the delay it does *not*
+know about: the extra delay beyond the one measured or given.  The known part costs a linear
+observer nothing (its loop is the undelayed one, as a Smith predictor's), so a compensating
+controller keeps the margin it has with no delay at all, at any age it is told.
 """
 
 import math
@@ -47,34 +54,64 @@ def _plant(tau, h):
 
 
 class _Loop:
-    """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay."""
+    """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay;
+    ``known``: None, or the samples of it the controller compensates (its delay line)."""
 
-    def __init__(self, ctrl, tau, n):
+    def __init__(self, ctrl, tau, n, known=None):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
         self.alpha = float(ctrl._IN[0, IN_ALPHA])
         self.A, self.B = _plant(tau, self.h)
         self.n = n
+        self.known = known
         self.ns = K.NS
-        self.size = self.ns + 1 + 3 + n  # channel state, input model, plant, command buffer
+        # channel state, input model, plant, command buffer; with a delay line, the delayed
+        # estimate and the inputs applied over the known delay too
+        self.line = 0 if known is None else 3 + known + 1
+        self.size = self.ns + 1 + 3 + n + self.line
+
+    def _channel(self, s, line, y, ydot):
+        """One step of the channel, through its delay line if it has one; the command."""
+        if self.known is None:
+            return K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, 0.0), s, line
+        # the line laid out afresh each step on its own clock: the last sample at 0, the
+        # inputs of the last ``known + 1`` steps begun at (-known .. 0) h + age
+        m, h = self.known + 1, self.h
+        age = self.known * h
+        row = np.zeros(K.NSD)
+        row[:self.ns] = s
+        row[K.DL_ON] = 1.0
+        row[K.DL_NOW] = age
+        row[K.DL_Z1:K.DL_Z1 + 3] = line[:3]
+        row[K.DL_N] = m
+        row[K.DL_HEAD] = m - 1
+        row[K.DL_TIMES:K.DL_TIMES + m] = age + h * np.arange(-self.known, 1)
+        row[K.DL_INPUTS:K.DL_INPUTS + m] = line[3:]
+        u = K.channel_update_aged(row, self.p, y, ydot, 0.0, 0.0, 0.0, h, age)
+        head = int(row[K.DL_HEAD])
+        inputs = row[K.DL_INPUTS + (head - np.arange(m - 1, -1, -1)) % K.HIST]
+        return u, row[:self.ns].copy(), np.concatenate([row[K.DL_Z1:K.DL_Z1 + 3], inputs])
 
     def step(self, z):
         ns, n = self.ns, self.n
         s = z[:ns].copy()
         obs = z[ns]
         x = z[ns + 1:ns + 4]
-        buf = z[ns + 4:]
+        buf = z[ns + 4:ns + 4 + n]
+        line = z[ns + 4 + n:]
         y, ydot = x[0], x[1]
-        u = K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, 0.0)
+        u, s, line = self._channel(s, line, y, ydot)
         obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
         s[K.S_U] = obs
+        if self.known is not None:
+            line[-1] = obs
         if n:
             applied = buf[-1]
             buf = np.concatenate([[u], buf[:-1]])
         else:
             applied = u
         x = self.A @ x + self.B * applied
-        return np.concatenate([s, [obs], x, buf])
+        return np.concatenate([s, [obs], x, buf, line])
 
     def radius(self):
         z0 = np.zeros(self.size)
@@ -95,28 +132,51 @@ class _Loop:
         return float(max(abs(np.linalg.eigvals(J))))
 
 
-def spectral_radius(ctrl, tau=None, delay=0.0):
+def _known(ctrl, delay, h):
+    """The samples of the plant's delay the controller compensates (None: it does not)."""
+    latency = getattr(ctrl, "latency", None)
+    if latency is None:
+        return None
+    return int(round((delay if latency == "auto" else latency) / h))
+
+
+def _delay(ctrl, delay):
+    """The plant's delay: as given, or the one the controller assumes (its latency, if a
+    number; else none)."""
+    if delay is not None:
+        return float(delay)
+    latency = getattr(ctrl, "latency", None)
+    return latency if isinstance(latency, float) else 0.0
+
+
+def spectral_radius(ctrl, tau=None, delay=None):
     """The linearised closed loop's spectral radius (< 1: stable) on the plant (lag ``tau`` s,
-    default the controller's own input model; ``delay`` s, rounded to samples)."""
+    default the controller's own input model; ``delay`` s, rounded to samples, default the one
+    the controller assumes: its ``latency`` if a number, else none)."""
     tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
     h = float(ctrl._P[0, K.P_H])
-    return _Loop(ctrl, tau, int(round(delay / h))).radius()
+    delay = _delay(ctrl, delay)
+    return _Loop(ctrl, tau, int(round(delay / h)), _known(ctrl, delay, h)).radius()
 
 
-def delay_margin(ctrl, tau=None, delay=0.0, max_extra_s=MAX_EXTRA_S):
+def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S):
     """The extra delay (s, in whole control periods) the loop tolerates on the plant (lag ``tau``,
-    default the controller's input model; ``delay`` s already there) before its linearisation
-    is unstable: 0.0 if it is unstable with no extra delay (``math.inf`` past ``max_extra_s``).
+    default the controller's input model; ``delay`` s already there, default the one the
+    controller assumes) before its linearisation is unstable: 0.0 if it is unstable with no
+    extra delay (``math.inf`` past ``max_extra_s``).  A controller that compensates the samples'
+    age knows ``delay`` (measured, or its latency in seconds) and not the extra.
     ``ctrl``: a :class:`mavadrc.control.position.PositionController`, at rest or not (its state
     is not touched)."""
     tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
     h = float(ctrl._P[0, K.P_H])
+    delay = _delay(ctrl, delay)
     n0 = int(round(delay / h))
-    if _Loop(ctrl, tau, n0).radius() >= 1.0:
+    known = _known(ctrl, delay, h)
+    if _Loop(ctrl, tau, n0, known).radius() >= 1.0:
         return 0.0
     stable = 0
     for extra in range(1, int(math.ceil(max_extra_s / h)) + 1):
-        if _Loop(ctrl, tau, n0 + extra).radius() >= 1.0:
+        if _Loop(ctrl, tau, n0 + extra, known).radius() >= 1.0:
             return stable * h
         stable = extra
     return math.inf

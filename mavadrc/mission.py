@@ -27,6 +27,7 @@ import numpy as np
 from sim.yamlio import ConfigError, Section, config_path, load_yaml
 
 from . import trajectories as T
+from .control.kernels import AGE_MAX
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
@@ -371,6 +372,15 @@ def _read_controller(sec, kinds=None):
             c.gains["input_lag"] = sec.string("input_lag")
         else:
             c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
+    if sec.has("latency"):
+        # how old the samples are, for the observers to compensate: auto (measured), seconds,
+        # or 0 (not compensated)
+        if sec.data["latency"] == "auto":
+            c.gains["latency"] = sec.string("latency")
+        else:
+            c.gains["latency"] = sec.number("latency", ge=0.0, le=AGE_MAX)
+        sec.check("latency", c.gains["latency"] == 0.0 or c.kind in ("ladrc", "adrc"),
+                  "the observers compensate the samples' age: ladrc and adrc only")
     if sec.has("beta"):
         c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
     if sec.has("td"):

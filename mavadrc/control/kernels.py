@@ -28,6 +28,10 @@ Otherwise (see :func:`leso_step`, :func:`nleso_step`, :func:`td_step`, :func:`pi
 * TD: sub-steps of at most the nominal step over the interval, the reference interpolated.
 * PD / PID: differences, integral and the D low-pass with the real h.
 
+A sample that is older than the step using it (a link's latency) goes through
+:func:`channel_update_aged`: the observer corrects at the sample's time and the law acts on its
+estimate carried to now, from a delay line kept after the state (rows of ``NSD`` entries).
+
 Observers are always fed the input that was *applied* over the last step (after limits), which is
 what ``S_U`` holds.  A caller that limits the command further (tilt limits, a mixer) overwrites
 ``S_U`` with what it really applied; the PID kind compares it with its own command to stop its
@@ -62,6 +66,22 @@ S_VPREV = 11  # PID: previous rate (for the D term)
 S_DF = 12  # PID: low-pass filtered derivative of the measured rate (the D term's input)
 S_RPREV = 13  # TD: the reference of the last step (interpolated over long intervals)
 NS = 14
+
+# --- the delay line (observers that know the sample's age; see channel_update_aged) -------------
+# A channel row of NSD entries: its state (NS), then the delayed estimate and the inputs applied.
+# Times are on the line's own clock: 0 at the sample before the one it was seeded on.
+HIST = 128  # inputs kept: 0.5 s at 250 Hz (older inputs count as the oldest kept)
+DL_ON = NS  # 1.0 once seeded
+DL_T = NS + 1  # the time of the last sample (when it was taken)
+DL_NOW = NS + 2  # the time of the last step (the sample's time plus its age)
+DL_Z1 = NS + 3  # the estimate at the last sample's time (z1, z2, z3: the delayed observer)
+DL_N = NS + 6  # inputs stored (<= HIST)
+DL_HEAD = NS + 7  # slot of the newest input
+DL_TIMES = NS + 8  # HIST slots: when each input began to be applied
+DL_INPUTS = DL_TIMES + HIST  # HIST slots: the input applied from then on
+NSD = DL_INPUTS + HIST
+#: the longest age compensated (s): an older sample is taken as this old
+AGE_MAX = 0.5
 
 # --- parameter vector layout ---------------------------------------------------------------------
 P_KIND = 0
@@ -397,6 +417,8 @@ def hold_disturbance(s):
     """
     s[S_Z3] = 0.0
     s[S_I] = 0.0
+    if s.shape[0] >= NSD:
+        s[DL_Z1 + 2] = 0.0
 
 
 @jit
@@ -466,13 +488,23 @@ def _channel_step(s, p, y, ydot, r, rdot, rddot, h):
     if s[S_INIT] == 0.0:
         channel_init(s, y, r, rdot)
     kind = p[P_KIND]
-    b0 = p[P_B0]
     if kind == KIND_LADRC:
         leso_step(s, p, y, h)
+    elif kind == KIND_HAN:
+        nleso_step(s, p, y, h)
+    return _law(s, p, y, ydot, r, rdot, rddot, h)
+
+
+@jit_inline
+def _law(s, p, y, ydot, r, rdot, rddot, h):
+    """The control law of a channel on its estimates (the observer has run): u0, u = the limited
+    command, kept in S_U0 and S_U."""
+    kind = p[P_KIND]
+    b0 = p[P_B0]
+    if kind == KIND_LADRC:
         u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_HAN:
-        nleso_step(s, p, y, h)
         if p[P_TD] != 0.0:
             td_step(s, p, r, h)
         else:
@@ -522,6 +554,183 @@ def channel_update_nominal(s, p, y, ydot, r, rdot, rddot):
     return _channel_step(s, p, y, ydot, r, rdot, rddot, p[P_H])
 
 
+# --- observers that know the sample's age ---------------------------------------------------------
+#
+# A sample taken ``age`` seconds before the step that uses it (the link, the estimator) is the
+# delayed measurement of PX4's EKF2 fusion horizon: the observer runs at the sample's time, fed
+# the inputs that were applied then, and is corrected there; the estimate for now is that one
+# carried over the age by the observer's own model with the inputs applied since:
+#
+#     z1 += tau z2 + tau^2/2 (z3 + b0 u_j),   z2 += tau (z3 + b0 u_j)     per input u_j held tau
+#
+# (a Smith predictor built on the ESO: the extended state z3 keeps the prediction honest).  The
+# control law then acts on the estimate for now.  For the linear ESO the prediction is exact for
+# inputs held between steps; for Han's NLESO the correction is its own, at the sample's time, and
+# the prediction the same linear model.  The Euler-type observers keep their estimate one nominal
+# step ahead of the sample; the prediction moves it the age further, inputs in the same order.
+#
+# The line keeps the delayed estimate and the inputs applied (one per step, with the time it
+# began) in the row after the channel's state (``NSD`` entries).  With age 0 at every step the
+# observer is fed exactly the input it always was and nothing is predicted: the step is
+# :func:`channel_update`'s, bit for bit.
+
+
+@jit
+def _open_loop(s, p, tau, u):
+    """Carry the estimate (z1, z2) over ``tau`` with the input u held (z3 constant)."""
+    a = s[S_Z3] + p[P_B0] * u
+    s[S_Z1] += tau * s[S_Z2] + 0.5 * tau * tau * a
+    s[S_Z2] += tau * a
+
+
+@jit
+def _inputs_over(s, p, t0, t1, predict):
+    """The inputs applied over [t0, t1] on the line's clock.  ``predict``: carry the estimate
+    over the span with them (:func:`_open_loop` piece by piece).  Returns their mean over the
+    span (exactly the input, when one was held over all of it) and how many there were.
+    Before the oldest input kept the oldest counts; with none kept, the input S_U."""
+    n = int(s[DL_N])
+    if n == 0:
+        if predict:
+            _open_loop(s, p, t1 - t0, s[S_U])
+        return s[S_U], 1
+    eps = H_SNAP * p[P_H]
+    head = int(s[DL_HEAD])
+    j = 0  # inputs back from the newest: the one applied at t0
+    while j < n - 1 and s[DL_TIMES + (head - j) % HIST] > t0 + eps:
+        j += 1
+    t = t0
+    total = 0.0
+    pieces = 0
+    u = 0.0
+    while True:
+        u = s[DL_INPUTS + (head - j) % HIST]
+        end = t1 if j == 0 else min(t1, s[DL_TIMES + (head - j + 1) % HIST])
+        if end - t > eps or (j == 0 and end > t):
+            if predict:
+                _open_loop(s, p, end - t, u)
+            else:
+                total += (end - t) * u
+            pieces += 1
+            t = end
+        if j == 0 or t >= t1 - eps:
+            break
+        j -= 1
+    if predict or pieces <= 1:
+        return u, pieces
+    return total / (t1 - t0), pieces
+
+
+@jit
+def _leso_correct(s, p, y, h):
+    """The ZOH LESO's correction with Lc(h), on an estimate already predicted to the sample."""
+    e = y - s[S_Z1]
+    if h == p[P_H]:
+        s[S_Z1] += p[P_L1] * e
+        s[S_Z2] += p[P_L2] * e
+        s[S_Z3] += p[P_L3] * e
+        return
+    beta = math.exp(-p[P_WO] * h)
+    omb = -math.expm1(-p[P_WO] * h)
+    s[S_Z1] += (1.0 - beta * beta * beta) * e
+    s[S_Z2] += 1.5 * omb * omb * (1.0 + beta) / h * e
+    s[S_Z3] += omb * omb * omb / (h * h) * e
+
+
+@jit
+def _push_input(s, t, u):
+    n = int(s[DL_N])
+    head = (int(s[DL_HEAD]) + 1) % HIST if n > 0 else 0
+    s[DL_TIMES + head] = t
+    s[DL_INPUTS + head] = u
+    s[DL_HEAD] = head
+    s[DL_N] = min(n + 1, HIST)
+
+
+@jit
+def set_applied_input(s, u):
+    """The input applied from the last step on is ``u`` (a caller's limits, an input model):
+    S_U, and the newest input of the delay line if the row has one in use."""
+    s[S_U] = u
+    if s.shape[0] >= NSD and s[DL_ON] != 0.0 and s[DL_N] > 0.0:
+        s[DL_INPUTS + int(s[DL_HEAD])] = u
+
+
+@jit
+def previous_age(s, default):
+    """The age of the sample of the last step (``default`` with no delay line in use)."""
+    if s.shape[0] < NSD or s[DL_ON] == 0.0:
+        return default
+    return s[DL_NOW] - s[DL_T]
+
+
+@jit
+def channel_update_aged(s, p, y, ydot, r, rdot, rddot, h, age):
+    """:func:`channel_update` on a sample taken ``age`` s before now (``h``: the interval since
+    the sample of the last step, both taken at their sample times).
+
+    LADRC and classical ADRC with a delay line (a row of NSD entries): the observer corrects its
+    estimate at the sample's time, fed the inputs applied then, and the law acts on that
+    estimate carried to now with the inputs applied since (see above); ``r, rdot, rddot`` are
+    the reference for now.  An age past :data:`AGE_MAX` counts as AGE_MAX; a step whose age
+    would take the clock back (a measured age that dropped by more than the interval) is taken
+    at the last step's time.  PD, PID and rows without a delay line: :func:`channel_update`
+    (the age is ignored).  NaN (state untouched) on what channel_update refuses or a NaN age.
+    """
+    kind = p[P_KIND]
+    if (kind != KIND_LADRC and kind != KIND_HAN) or s.shape[0] < NSD:
+        return _channel_step(s, p, y, ydot, r, rdot, rddot, h)
+    if not (math.isfinite(y) and math.isfinite(r) and math.isfinite(rdot) and math.isfinite(rddot)
+            and age == age):
+        return math.nan
+    if h != p[P_H]:
+        h = real_step(p, h)
+        if h != h:
+            return math.nan
+    age = min(max(age, 0.0), AGE_MAX)
+    if s[S_INIT] == 0.0:
+        channel_init(s, y, r, rdot)
+    if s[DL_ON] == 0.0:  # seeded with the estimate there is, as of the last sample
+        s[DL_ON] = 1.0
+        s[DL_T] = 0.0
+        s[DL_NOW] = age
+        s[DL_N] = 0.0
+        s[DL_HEAD] = 0.0
+        for i in range(3):
+            s[DL_Z1 + i] = s[S_Z1 + i]
+    t0 = s[DL_T]
+    t1 = t0 + h
+    now = max(t1 + age, s[DL_NOW])
+    hl = h  # the interval since the last step, for the law (its TD): h unless the age changed
+    dage = (now - t1) - (s[DL_NOW] - t0)
+    if dage != 0.0:
+        hl = real_step(p, h + dage) if h + dage > 0.0 else h
+    # the delayed observer, at the sample's time, fed the inputs applied then: the ZOH LESO
+    # predicts with each exactly; the Euler-type observers, whose recursion takes one input,
+    # with their mean (exact for the rate)
+    u_then, pieces = _inputs_over(s, p, t0, t1, False)
+    for i in range(3):
+        s[S_Z1 + i] = s[DL_Z1 + i]
+    s[S_U] = u_then
+    if kind == KIND_LADRC and p[P_OBS] == OBS_ZOH and pieces > 1:
+        _inputs_over(s, p, t0, t1, True)
+        _leso_correct(s, p, y, h)
+    elif kind == KIND_LADRC:
+        leso_step(s, p, y, h)
+    else:
+        nleso_step(s, p, y, h)
+    for i in range(3):
+        s[DL_Z1 + i] = s[S_Z1 + i]
+    s[DL_T] = t1
+    # carried to now
+    if now > t1:
+        _inputs_over(s, p, t1, now, True)
+    s[DL_NOW] = now
+    u = _law(s, p, y, ydot, r, rdot, rddot, hl)
+    _push_input(s, now, u)
+    return u
+
+
 # --- parameter construction (plain Python, run once) ---------------------------------------------
 
 
@@ -559,8 +768,9 @@ def new_params():
     return p
 
 
-def new_state():
-    return np.zeros(NS)
+def new_state(delay_line=False):
+    """A channel's state vector (``delay_line``: with room for :func:`channel_update_aged`)."""
+    return np.zeros(NSD if delay_line else NS)
 
 
 @jit

@@ -27,20 +27,25 @@ NIN = 4
 
 
 @jit
-def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h):
+def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     """One step of the three position channels and the attitude map; False on non-finite input.
 
-    S: (3, NS) channel states, P: (3, NP) channel parameters, M: mapping parameters, IN: (3, NIN)
-    the observers' input model per axis (IN_* columns; see ``input_lag``).  ``vel`` is the
-    measured velocity (used by PD and PID channels; NaN entries make them differentiate).
-    ``out``: the layout of :func:`geometry.accel_to_attitude` followed by the three raw
-    commands.  ``h``: the interval since the sample of the last step (P[:, P_H] is nominal).
+    S: (3, NS) channel states (or (3, NSD): with delay lines), P: (3, NP) channel parameters,
+    M: mapping parameters, IN: (3, NIN) the observers' input model per axis (IN_* columns; see
+    ``input_lag``).  ``vel`` is the measured velocity (used by PD and PID channels; NaN entries
+    make them differentiate).  ``out``: the layout of :func:`geometry.accel_to_attitude`
+    followed by the three raw commands.  ``h``: the interval since the sample of the last step
+    (P[:, P_H] is nominal).  ``age``: how long before now the sample was taken (s): the
+    observers of rows with delay lines correct at the sample's time and the law acts on their
+    estimate for now, the reference being now's (:func:`kernels.channel_update_aged`); NaN:
+    the sample is taken as now's (the age is not compensated).
 
     The input model is the first-order lag ``u_obs += alpha (u_applied - u_obs)``, alpha = 1 -
     exp(-h/tau), exact for a command held over the interval.  Each step advances it by the
     nominal step (the next interval is not known yet) and the next step, once it knows the
     interval, redoes that advance with its alpha: the observer then predicts with the input the
-    vehicle really received, across a gap too.
+    vehicle really received, across a gap too.  With the age compensated the interval is the
+    one between the steps (the samples' interval plus the change of their age).
     """
     for i in range(3):
         if not (math.isfinite(pos[i]) and math.isfinite(rpos[i]) and math.isfinite(rvel[i])
@@ -51,16 +56,27 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h):
     hh = K.real_step(P[0], h)
     if hh != hh:
         return False
-    if hh != P[0, K.P_H]:
-        for i in range(3):
-            tau = IN[i, IN_TAU]
-            if tau > 0.0:
-                da = (-math.expm1(-hh / tau) - IN[i, IN_ALPHA]) * IN[i, IN_DIFF]
-                IN[i, IN_STATE] += da
-                S[i, K.S_U] += da
-    a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh)
-    a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh)
-    a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh)
+    aged = age == age
+    for i in range(3):
+        hs = hh
+        if aged:  # the interval between the steps, over which the last command was held
+            a = min(max(age, 0.0), K.AGE_MAX)
+            hs = max(hh + a - K.previous_age(S[i], a), 0.0)
+            if abs(hs - P[0, K.P_H]) <= K.H_SNAP * P[0, K.P_H]:
+                hs = P[0, K.P_H]
+        tau = IN[i, IN_TAU]
+        if hs != P[0, K.P_H] and tau > 0.0:
+            da = (-math.expm1(-hs / tau) - IN[i, IN_ALPHA]) * IN[i, IN_DIFF]
+            IN[i, IN_STATE] += da
+            K.set_applied_input(S[i], S[i, K.S_U] + da)
+    if aged:
+        a0 = K.channel_update_aged(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh, age)
+        a1 = K.channel_update_aged(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh, age)
+        a2 = K.channel_update_aged(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh, age)
+    else:
+        a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh)
+        a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh)
+        a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh)
     G.accel_to_attitude(a0, a1, a2, yaw, M, out)
     for i in range(3):
         # the observers' input: the limited command through the input model (a first-order
@@ -68,7 +84,7 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h):
         diff = out[G.O_ACC + i] - IN[i, IN_STATE]
         IN[i, IN_DIFF] = diff
         IN[i, IN_STATE] += IN[i, IN_ALPHA] * diff
-        S[i, K.S_U] = IN[i, IN_STATE]
+        K.set_applied_input(S[i], IN[i, IN_STATE])
     out[G.NO] = a0
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
@@ -110,6 +126,26 @@ def _axis(value, i, name):
     return value
 
 
+def check_latency(latency, kind):
+    """A controller's ``latency`` setting: None (not compensated; also for 0), ``"auto"`` or a
+    number of seconds in (0, AGE_MAX]; ValueError otherwise or on a kind without an observer."""
+    if latency is None:
+        return None
+    if isinstance(latency, str):
+        if latency != "auto":
+            raise ValueError(f"latency must be 'auto' or a number of seconds (got {latency!r})")
+    else:
+        latency = float(latency)
+        if not (math.isfinite(latency) and 0.0 <= latency <= K.AGE_MAX):
+            raise ValueError(f"latency must be between 0 and {K.AGE_MAX:g} s (got {latency!r})")
+        if latency == 0.0:
+            return None
+    if kind not in ("ladrc", "adrc"):
+        raise ValueError("latency is compensated by the observers: it applies to the 'ladrc' "
+                         f"and 'adrc' kinds, not {kind!r}")
+    return latency
+
+
 def axis_params(kind, i, h, gains):
     """Kernel parameters of position axis ``i`` from per-axis gain keywords."""
     g = {k: _axis(v, i, k) for k, v in gains.items()}
@@ -139,12 +175,19 @@ class PositionController:
     integrators see the acceleration the limited setpoint commands, so they hold still while the
     tilt or thrust limits cut their axis (conditional integration).  Thrust is
     normalised by ``hover_thrust`` or by ``mass`` and ``max_thrust`` (N).  ``tilt_max`` is in rad.
+
+    ``latency`` ('ladrc' and 'adrc'): how old the samples are, for the observers to compensate
+    (:func:`kernels.channel_update_aged`): ``"auto"``, the age :meth:`update` is given with each
+    sample (none given: 0); a number of seconds, every sample's age; 0 or None, not compensated
+    (the sample is taken as now's).  Either way the reference :meth:`update` is given must be
+    the one for now.
     """
 
     def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
                  tilt_max=math.radians(35.0), thrust_min=0.05, thrust_max=1.0, g=G.GRAVITY,
-                 **gains):
+                 latency=None, **gains):
         self.kind = kind
+        self.latency = check_latency(latency, kind)
         lag = gains.pop("input_lag", None)
         self._IN = np.zeros((3, NIN))
         self._IN[:, IN_ALPHA] = 1.0
@@ -160,7 +203,7 @@ class PositionController:
                 self._IN[i, IN_TAU] = tau
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
         self._h = float(self._P[0, K.P_H])
-        self._S = np.zeros((3, K.NS))
+        self._S = np.zeros((3, K.NSD))
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
                                    tilt_max=tilt_max, thrust_min=thrust_min,
                                    thrust_max=thrust_max, g=g)
@@ -197,13 +240,25 @@ class PositionController:
         (:func:`position_hold_disturbance`: only the vertical axis)."""
         position_hold_disturbance(self._S)
 
-    def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0, dt=None):
+    def sample_age(self, age=None):
+        """The age (s) the observers are told for a sample measured ``age`` s old (None:
+        unknown): NaN when the controller does not compensate it."""
+        if self.latency is None:
+            return math.nan
+        if self.latency == "auto":
+            return 0.0 if age is None or not math.isfinite(age) else max(float(age), 0.0)
+        return self.latency
+
+    def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0, dt=None,
+               age=None):
         """One step: returns (q [w, x, y, z], normalized thrust).
 
         ``pos``/``vel``: measured NED position and velocity (``vel`` may be None for ADRC kinds;
         PD and PID then differentiate).  ``ref_*``: reference and its derivatives (None: zero).
         ``dt``: the interval (s) since the sample of the last step, from the vehicle's
-        timestamps (None: the nominal step ``h``); it must be a finite number > 0.
+        timestamps (None: the nominal step ``h``); it must be a finite number > 0.  ``age``: how
+        long before now the sample was taken, as measured (s; None: unknown), used as
+        ``latency`` says (:meth:`sample_age`).
         """
         pos = np.asarray(pos, dtype=np.float64)
         vel = self._nan3 if vel is None else np.asarray(vel, dtype=np.float64)
@@ -212,7 +267,7 @@ class PositionController:
         ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
         h = self._h if dt is None else float(dt)
         if not position_update(self._S, self._P, self._M, self._IN, pos, vel, rp, rv, ra,
-                               float(yaw), self._out, h):
+                               float(yaw), self._out, h, self.sample_age(age)):
             if not (h > 0.0 and math.isfinite(h)):
                 raise ValueError(f"dt must be a finite interval > 0 s (got {dt!r}); state left "
                                  "unchanged")
