@@ -51,7 +51,8 @@ from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE
-from .identify import MAX_DELAY_S, failure_text, fit, needs_identification, summary_line
+from .identify import (MAX_DELAY_S, failure_text, fit, median_age, needs_identification,
+                       observer_lag, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -378,7 +379,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self.gains is None:
             self.gains = resolve_gains(
                 self.m.controller, self.kind,
-                identified=self.identification["input_lag"] if self.identification else None)
+                identified=(observer_lag(self.identification, self.m.controller)
+                            if self.identification else None))
         return self.kind, self.gains
 
     def _make_controller(self, hover):
@@ -408,11 +410,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
         start = min(w[1] for w in self._id_windows) - MAX_DELAY_S - 0.1
         end = max(w[2] for w in self._id_windows)
         if t >= start:
-            self._id_data.append((t, *self.ctrl.accel_applied, *s.vel))
+            self._id_data.append((t, *self.ctrl.accel_applied, *s.vel,
+                                  math.nan if s.age is None else s.age))
         if t < end:
             return
         d = np.asarray(self._id_data)
         rec = fit(d[:, 0], d[:, 1:4], d[:, 4:7], self._id_windows)
+        rec["sample_age_s"] = median_age(d[:, 0], d[:, 7], self._id_windows)
         rec["flown"] = f"in flight, on system {self.link.target_system} ({self.link.autopilot})"
         self.identification = rec
         self._id_data = []
@@ -425,7 +429,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         old = self.ctrl
         self.ctrl = self._make_controller(self.hover)
         carry_over(self.ctrl, old, s.pos, s.vel)
-        lag = ", ".join(f"{x:.3f}" for x in rec["input_lag"])
+        lag = ", ".join(f"{x:.3f}" for x in self.gains["input_lag"])
         self.say(f"flying {self.kind} with the observers' input lag ({lag}) s from here; "
                  f"{margin_text(self.delay_margin)}")
 

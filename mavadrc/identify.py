@@ -226,7 +226,7 @@ _CACHE = {}
 def identify_inprocess(mission, seed=None):
     """Fly :func:`identification_mission` on the in-process fast path and fit it: the record of
     :func:`fit` for the vehicle ``mission`` flies (cached per vehicle setting)."""
-    from .inprocess import L_ACC, L_T, L_VEL, fly_inprocess
+    from .inprocess import L_ACC, L_AGE, L_T, L_VEL, fly_inprocess
     m = identification_mission(mission)
     seed = m.seed if seed is None else seed
     link = m.link
@@ -236,11 +236,29 @@ def identify_inprocess(mission, seed=None):
     if key not in _CACHE:
         run = fly_inprocess(m, seed=seed)
         L = run.log
-        rec = fit(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3],
-                  windows_in(run.phases))
+        windows = windows_in(run.phases)
+        rec = fit(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3], windows)
+        rec["sample_age_s"] = median_age(L[:, L_T], L[:, L_AGE], windows)
         rec["flown"] = "in process, on the bundled vehicle"
         _CACHE[key] = rec
     return _CACHE[key]
+
+
+def median_age(t, age, windows):
+    """The samples' median age (s) over the identification's windows (0 if none is known)."""
+    t, age = np.asarray(t, dtype=float), np.asarray(age, dtype=float)
+    keep = (t >= min(w[1] for w in windows)) & (t <= max(w[2] for w in windows)) & (age == age)
+    return float(np.median(age[keep])) if keep.any() else 0.0
+
+
+def observer_lag(rec, spec):
+    """The observers' input lag for ``spec`` from an identification: as identified (the
+    samples' age included: the controller sees its commands act that much later), less the age
+    the controller compensates itself (its ``latency``: the median age measured during the
+    identification for ``auto``, the seconds given otherwise)."""
+    lat = spec.gains.get("latency", 0.0)
+    age = rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
+    return tuple(max(float(x) - age, 0.0) for x in rec["input_lag"])
 
 
 def needs_identification(spec, kind=None):
@@ -263,7 +281,7 @@ def with_identified(mission, kind=None, seed=None):
     m = copy.copy(mission)
     m.controller = dataclasses.replace(
         mission.controller, gains={**mission.controller.gains,
-                                   "input_lag": tuple(rec["input_lag"])})
+                                   "input_lag": observer_lag(rec, mission.controller)})
     m.identification = rec
     return m
 

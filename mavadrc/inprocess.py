@@ -75,7 +75,8 @@ L_WRENCH = 27  # 4: achieved [T, tau_x, tau_y, tau_z] (the thesis's U1..U4)
 L_YAW = 31
 L_REF_YAW = 32
 L_REF_ACC = 33  # 3
-NLOG = 36
+L_AGE = 36  # the sample's age when the controller got it (s), compensated or not
+NLOG = 37
 
 STATUS_OK = 0
 STATUS_BREACH = 1
@@ -242,6 +243,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
             row[L_YAW] = syaw[d]
             row[L_REF_YAW] = refs[j, 9] + yaw_offset
+            row[L_AGE] = (k - s) * Pc[0, K.P_H]
             for i in range(3):
                 row[L_REF_ACC + i] = refs[j, 6 + i]
             j += 1
