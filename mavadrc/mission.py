@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import ConfigError, Section, config_path, load_yaml
+from sim.yamlio import ConfigError, Section, config_path, did_you_mean, load_yaml
 
 from . import trajectories as T
 
@@ -277,8 +277,9 @@ _REQUIRED = {
 def _read_segment(sec):
     keys = [k for k in sec.data]
     if len(keys) != 1 or keys[0] not in SEGMENTS:
+        hint = did_you_mean(keys[0], SEGMENTS) if len(keys) == 1 else ""
         sec.error(keys[0] if keys else None,
-                  f"each trajectory item is one of {', '.join(SEGMENTS)} (got {keys!r})")
+                  f"each trajectory item is one of {', '.join(SEGMENTS)} (got {keys!r}{hint})")
     kind = keys[0]
     body = sec.raw(kind)
     if body is None:
