@@ -315,3 +315,22 @@ def test_a_list_or_a_scalar_where_a_mapping_belongs_is_said_in_words(text, where
     with pytest.raises(ConfigError) as err:
         load_mission(path)
     assert str(err.value) == f"{path}{where}"
+
+
+# --- the vehicle's words --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("autopilot, custom_mode, name", [
+    ("px4", 0x3040000, "AUTO.LOITER"), ("px4", 0x6040000, "AUTO.LAND"),
+    ("px4", 0x2040000, "AUTO.TAKEOFF"), ("px4", 0x5040000, "AUTO.RTL"),
+    ("px4", 6 << 16, "OFFBOARD"), ("px4", 3 << 16, "POSCTL"), ("px4", 2 << 16, "ALTCTL"),
+    ("px4", 0x63040000, "custom_mode 0x63040000"),
+    ("ardupilot", 4, "GUIDED"), ("ardupilot", 20, "GUIDED_NOGPS"), ("ardupilot", 9, "LAND"),
+    ("ardupilot", 5, "LOITER"), ("ardupilot", 6, "RTL"), ("ardupilot", 0, "STABILIZE"),
+    ("ardupilot", 99, "custom_mode 99"), (None, 0x3040000, "custom_mode 0x3040000"),
+])
+def test_flight_modes_are_named_as_the_autopilot_names_them(autopilot, custom_mode, name):
+    from mavadrc.sequence import mode_name, sequence_for
+
+    assert mode_name(autopilot, custom_mode) == name
+    if autopilot is not None:
+        assert sequence_for(autopilot).mode_name(custom_mode) == name
