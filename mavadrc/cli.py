@@ -64,7 +64,8 @@ def build_parser():
                         "udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0:57600) instead of starting "
                         "the bundled one")
     f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid"), default=None,
-                   help="position controller (default: the mission's)")
+                   type=str.lower, help="position controller, in either case: ladrc or LADRC "
+                                        "(default: the mission's)")
     f.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
     f.add_argument("--lockstep", action="store_true",
                    help="bundled vehicle only: run as fast as the machine allows, deterministically")
@@ -111,7 +112,8 @@ def build_parser():
                                     "over an experiment's scenarios and seeds")
     t.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     t.add_argument("--controller", required=True,
-                   help="the experiment's controller (by name) whose gains are searched")
+                   help="the experiment's controller whose gains are searched, by its name in "
+                        "either case (LADRC or ladrc)")
     t.add_argument("--scenarios", action="append", default=None,
                    help="scenario names to tune on (shell pattern; repeat for several; "
                         "default: all)")

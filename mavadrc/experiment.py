@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import Section, YamlMap, config_path, described, load_yaml
+from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 from .mission import KINDS, _read_controller, mission_from_section
 from .record import error_figures
@@ -244,9 +244,17 @@ def experiment_from_text(source, text):
              "at_most": gs.number("at_most", None), "at_least": gs.number("at_least", None),
              "text": gs.string("text", ""),
              "over": gs.string("over", "each", choices=("each", "all"))}
-        names = {c.name for c in controllers}
-        for c in g["controllers"] + ([g["ratio_to"]] if g["ratio_to"] else []):
-            gs.check("controllers", c in names, f"no controller called {c!r}")
+        names = [c.name for c in controllers]
+
+        def named(c, key):  # a controller's name, in either case
+            found = choose(c, names)
+            gs.check(key, found is not None, f"no controller called {c!r} (the experiment's: "
+                                             f"{', '.join(names)}{did_you_mean(c, names)})")
+            return found
+
+        g["controllers"] = [named(c, "controllers") for c in g["controllers"]]
+        if g["ratio_to"]:
+            g["ratio_to"] = named(g["ratio_to"], "ratio_to")
         gs.check("metric", g["at_most"] is not None or g["at_least"] is not None,
                  "give at_most or at_least")
         gs.finish()

@@ -23,6 +23,8 @@ import sys
 
 import numpy as np
 
+from sim.yamlio import choose, did_you_mean
+
 from .compare import default_workers, process_pool
 from .experiment import experiment_from_text, load_experiment, run_inprocess
 
@@ -160,8 +162,12 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
 
     exp = load_experiment(path)
     names = [c.name for c in exp.controllers]
-    if controller not in names:
-        raise ValueError(f"no controller called {controller!r} (have: {', '.join(names)})")
+    named = choose(controller, names)  # LADRC or ladrc
+    if named is None:
+        raise ValueError(f"--controller {controller}: {exp.source} has no controller called "
+                         f"that (its controllers: {', '.join(names)}"
+                         f"{did_you_mean(controller, names)})")
+    controller = named
     j = names.index(controller)
     kind = exp.controllers[j].kind
     patterns = [scenarios] if isinstance(scenarios, str) else list(scenarios)

@@ -334,3 +334,30 @@ def test_flight_modes_are_named_as_the_autopilot_names_them(autopilot, custom_mo
     assert mode_name(autopilot, custom_mode) == name
     if autopilot is not None:
         assert sequence_for(autopilot).mode_name(custom_mode) == name
+
+
+# --- controller names in either case --------------------------------------------------------------
+
+def test_a_controller_is_named_in_either_case_and_a_wrong_name_lists_the_choices(capsys,
+                                                                                 tmp_path):
+    from mavadrc.cli import build_parser
+
+    for spelt in ("LADRC", "ladrc", "Ladrc"):
+        assert build_parser().parse_args(["fly", "hover", "--controller", spelt]).controller \
+            == "ladrc"
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["fly", "hover", "--controller", "lqr"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'lqr'" in err and "'adrc', 'ladrc', 'pd', 'pid'" in err
+    # tune names the experiment's controllers; a wrong name is refused before any search
+    code, lines = run_cli(["tune", str(TINY), "--controller", "LADCR", "--workers", "1",
+                           "--out", str(tmp_path / "t.yaml")], capsys)
+    assert code == 2
+    one_clear_line(lines, "--controller LADCR", "PD, LADRC, oracle", "did you mean 'LADRC'")
+    # an experiment's goals name its controllers in either case too
+    text = TINY.read_text().replace("controllers: [LADRC], metric", "controllers: [ladrc], metric")
+    text = text.replace("ratio_to: PD", "ratio_to: pd")
+    exp = experiment_from_text(str(tmp_path / "e.yaml"), text)
+    assert [(g["controllers"], g["ratio_to"]) for g in exp.goals] == [
+        (["LADRC"], "PD"), (["PD"], None), (["LADRC"], "PD")]
