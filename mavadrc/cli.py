@@ -45,9 +45,16 @@ def _plot(args):
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="mavadrc",
-        description="Disturbance-rejecting offboard control (ADRC, LADRC, PD) for multirotors.")
+        description="Disturbance-rejecting offboard control (ADRC, LADRC, PD, PID) for "
+                    "multirotors over MAVLink, with a bundled simulated vehicle.")
     sub = parser.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("bench", help="print per-call step times of the controllers and the vehicle")
+
+    def command(name, help, description=None):
+        # the line in mavadrc --help, and (unless a longer one is given) mavadrc NAME --help's
+        return sub.add_parser(name, help=help,
+                              description=description or help[0].upper() + help[1:] + ".")
+
+    b = command("bench", help="print per-call step times of the controllers and the vehicle")
     b.add_argument("--json", action="store_true",
                    help="print one JSON object mapping figure names (units in the name) to numbers")
     b.add_argument("--no-sitl", action="store_true",
@@ -57,7 +64,7 @@ def build_parser():
     b.add_argument("--compare-seeds", type=int, default=10,
                    help="seeds for the thesis-matrix figure (default 10; 100 takes minutes)")
     b.set_defaults(func=_bench)
-    f = sub.add_parser("fly", help="fly a mission (against the bundled vehicle unless --connect)")
+    f = command("fly", help="fly a mission (against the bundled vehicle unless --connect)")
     f.add_argument("mission", help="mission YAML file (or a name in configs/missions)")
     f.add_argument("--connect", default=None,
                    help="fly a vehicle at this MAVLink URL (udpin:0.0.0.0:14540, udp://:14540, "
@@ -87,7 +94,7 @@ def build_parser():
                         "vehicle is started with the same key)")
     f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     f.set_defaults(func=_fly)
-    c = sub.add_parser("compare", help="run an experiment (scenarios x controllers x seeds) and "
+    c = command("compare", help="run an experiment (scenarios x controllers x seeds) and "
                                        "write its report")
     c.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     c.add_argument("--out", default=None,
@@ -108,7 +115,7 @@ def build_parser():
     c.add_argument("--no-figures", action="store_true", help="tables only")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_compare)
-    t = sub.add_parser("tune", help="search controller bandwidths that minimise the RMS error "
+    t = command("tune", help="search controller bandwidths that minimise the RMS error "
                                     "over an experiment's scenarios and seeds")
     t.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     t.add_argument("--controller", required=True,
@@ -129,13 +136,20 @@ def build_parser():
                         "defaults are printed at the start)")
     t.add_argument("--out", default=None, help="controller YAML to write (default: stdout)")
     t.set_defaults(func=_tune)
-    p = sub.add_parser("plot", help="redraw the figures of a flight record or of any .tlog")
+    p = command("plot", help="redraw the figures of a flight record or of any .tlog")
     p.add_argument("target", help="a flight record folder or a .tlog file")
     p.add_argument("--out", default=None, help="where to write the PNGs")
     p.set_defaults(func=_plot)
     from sim import cli as sim_cli
 
-    s = sub.add_parser("sitl", help="run the bundled vehicle behind MAVLink, like PX4 SITL")
+    s = command(
+        "sitl", help="run the bundled vehicle behind MAVLink, like PX4 SITL",
+        description="Run the bundled simulated vehicle behind MAVLink, as a PX4 SITL (or, with "
+                    "--autopilot ardupilot, an ArduCopter SITL) would: it sends its offboard "
+                    "link to UDP port 14540 (plus --instance) and its ground-station link to "
+                    "14550, where mavadrc fly --connect, MAVSDK, MAVProxy or QGroundControl "
+                    "find it. Real time until Ctrl-C or --duration; --lockstep steps once per "
+                    "setpoint received.")
     sim_cli.add_arguments(s)
     s.set_defaults(func=_sitl)
     return parser

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .console import counted
 from .experiment import SATURATION_SHARE, metric
 
 TABLE_METRICS = (
@@ -246,8 +247,9 @@ def write_report(folder, exp, records, meta, logs, workers=1):
     if exp.description:
         L += [exp.description.strip(), ""]
     ns = len(meta["seeds"])
-    L += [f"Experiment file `{exp.source}`; {meta['runs']} runs ({len(exp.scenarios)} scenarios "
-          f"x {len(exp.controllers)} controllers x {ns} seed{'s' if ns != 1 else ''}), "
+    L += [f"Experiment file `{exp.source}`; {counted(meta['runs'], 'run')} "
+          f"({counted(len(exp.scenarios), 'scenario')} x "
+          f"{counted(len(exp.controllers), 'controller')} x {counted(ns, 'seed')}), "
           f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
           f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
           f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", ""]

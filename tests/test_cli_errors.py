@@ -174,6 +174,7 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
     err = capsys.readouterr().err
     bar_end = err.index("6/6 runs")
     assert "writing the report" in err[bar_end:]
+    assert "tiny: 2 scenarios x 3 controllers x 1 seed\n" in err  # not "1 seeds"
 
 
 def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
@@ -361,3 +362,31 @@ def test_a_controller_is_named_in_either_case_and_a_wrong_name_lists_the_choices
     exp = experiment_from_text(str(tmp_path / "e.yaml"), text)
     assert [(g["controllers"], g["ratio_to"]) for g in exp.goals] == [
         (["LADRC"], "PD"), (["PD"], None), (["LADRC"], "PD")]
+
+
+# --- help and progress ----------------------------------------------------------------------------
+
+def test_every_command_has_a_description_and_the_top_names_every_controller():
+    from argparse import _SubParsersAction
+
+    from mavadrc.cli import build_parser
+
+    parser = build_parser()
+    assert "(ADRC, LADRC, PD, PID)" in parser.format_help()
+    (sub,) = [a for a in parser._actions if isinstance(a, _SubParsersAction)]
+    for name, command in sub.choices.items():
+        assert command.description and len(command.description) > 20, name
+    assert "14540" in sub.choices["sitl"].description
+
+
+def test_the_progress_line_keeps_a_long_segment_name_whole():
+    from mavadrc.console import Console, counted
+
+    out = io.StringIO()
+    Console(out).progress("transit to thesis_spiral", 3.0, 60.0, 0.25)
+    assert out.getvalue().startswith("transit to thesis_spiral t    3.0/60 s")
+    out = io.StringIO()
+    Console(out).progress("hover", 3.0, 60.0, 0.25)
+    assert out.getvalue().startswith("hover              t    3.0/60 s")  # columns kept
+    assert (counted(1, "seed"), counted(2, "seed"), counted(0, "run")) == ("1 seed", "2 seeds",
+                                                                           "0 runs")
