@@ -140,7 +140,7 @@ def findings(exp, groups):
                 why = f"{m:.3f}" if ok and math.isfinite(m) else "infeasible"
                 out.append(f"- **{c.name}**, {b['series']}: breaks at {sc.series['value']:g} "
                            f"{unit} (`{b['metric']}` {why} > {b['above']:g}).")
-    # ADRC vs LADRC, scenario by scenario, where both ran
+    # ADRC vs LADRC over the scenarios both could fly: the median ratio and its extremes
     kinds = {c.kind: c.name for c in exp.controllers}
     if "adrc" in kinds and "ladrc" in kinds:
         a, l = kinds["adrc"], kinds["ladrc"]
