@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import ConfigError, Section, config_path, did_you_mean, load_yaml
+from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
 
 from . import trajectories as T
 
@@ -498,6 +498,8 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         segs[-1].error(None, "the last segment must be a land")
     if top.has("wind"):
         m.wind = top.raw("wind")
+        top.check("wind", isinstance(m.wind, (str, dict)),
+                  f"must be a wind name, a file or a mapping (got {described(m.wind)})")
         try:
             from sim.wind import load_wind
             load_wind(m.wind)  # checked now, before anything flies

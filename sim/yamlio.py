@@ -355,5 +355,6 @@ def config_path(name_or_path: str | Path, folder: str) -> Path:
     path = CONFIG_DIR / folder / f"{text}.yaml"
     if not path.exists():
         shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
-        raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)})")
+        raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)}"
+                          f"{did_you_mean(text, shipped)})")
     return path

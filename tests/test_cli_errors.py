@@ -273,6 +273,13 @@ def test_a_misspelt_choice_or_segment_is_named_and_the_case_of_a_kind_does_not_m
         load_mission(path)
 
 
+def test_a_misspelt_shipped_name_is_named_with_the_closest(capsys):
+    code, lines = run_cli(["compare", "thesys", "-q"], capsys)
+    assert code == 2
+    one_clear_line(lines, "thesys: no such experiments config (shipped: gusts, robustness, "
+                          "thesis; did you mean 'thesis'?)")
+
+
 def test_a_misspelt_vehicle_key_is_named_with_the_closest(tmp_path):
     from sim.params import load_vehicle
 
@@ -309,6 +316,8 @@ def test_a_misspelt_default_of_an_experiment_is_named_in_its_defaults(tmp_path, 
      ":4: controller: must be a mapping (got a list)"),
     (HOVER.replace("- hover: {duration: 5}", "- hover"), ":9: trajectory[1]: must be a mapping "
                                                          "(got the text 'hover')"),
+    (HOVER.replace("name: hover", "name: hover\nwind: [1, 2]"),
+     ":3: wind: must be a wind name, a file or a mapping (got a list)"),
 ])
 def test_a_list_or_a_scalar_where_a_mapping_belongs_is_said_in_words(text, where, tmp_path):
     path = tmp_path / "m.yaml"
