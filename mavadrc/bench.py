@@ -1,11 +1,12 @@
 """`mavadrc bench`: per-call step times of the controllers (and, when present, of the vehicle).
 
-Figures are medians over repeated blocks of calls on this machine; peers (pyadrc) are measured
-in the same run so ratios stay meaningful on a shared, noisy machine.  Names carry their units.
+Figures are medians over repeated blocks of calls on this machine; peers (pyadrc, rotorpy) are
+measured in the same run so ratios stay meaningful on a shared, noisy machine.  Names carry their
+units.  A peer that is not installed has None (null in JSON) for its figures, and the table says
+how to install it.
 """
 
 import json
-import math
 import sys
 import time
 
@@ -15,6 +16,11 @@ from sim.bench import median_us
 
 from .control import PD, AttitudeController, HanADRC, LinearADRC, PositionController
 from .embedded import free_udp_port
+
+
+#: the peers measured beside our kernels when installed, and how to install them
+PEERS = ("pyadrc", "rotorpy")
+PEERS_INSTALL = 'pip install -e ".[bench]" (from the mavadrc checkout)'
 
 
 def per_call_us(fn):
@@ -58,8 +64,8 @@ def control_figures():
     try:
         import pyadrc
     except ImportError:
-        fig["pyadrc_statespace_step_us"] = math.nan
-        fig["ratio_pyadrc_over_linear_adrc"] = math.nan
+        fig["pyadrc_statespace_step_us"] = None
+        fig["ratio_pyadrc_over_linear_adrc"] = None
     else:
         peer = pyadrc.StateSpace(order=2, delta=h, b0=1.0, w_cl=20.0, k_eso=5.0,
                                  m_lim=(-50.0, 50.0))
@@ -354,5 +360,9 @@ def main(as_json=False, out=sys.stdout, sitl=True, compare=True, compare_seeds=1
         return 0
     width = max(len(k) for k in fig)
     for k, v in fig.items():
-        out.write(f"{k:<{width}}  {v:12.4g}\n")
+        if v is None:
+            peer = next(p for p in PEERS if p in k)
+            out.write(f"{k:<{width}}  {peer} is not installed: {PEERS_INSTALL}\n")
+        else:
+            out.write(f"{k:<{width}}  {v:12.4g}\n")
     return 0

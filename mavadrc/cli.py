@@ -51,9 +51,16 @@ def _plot(args):
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="mavadrc",
-        description="Disturbance-rejecting offboard control (ADRC, LADRC, PD) for multirotors.")
+        description="Disturbance-rejecting offboard control (ADRC, LADRC, PD, PID) for "
+                    "multirotors over MAVLink, with a bundled simulated vehicle.")
     sub = parser.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("bench", help="print per-call step times of the controllers and the vehicle")
+
+    def command(name, help, description=None):
+        # the line in mavadrc --help, and (unless a longer one is given) mavadrc NAME --help's
+        return sub.add_parser(name, help=help,
+                              description=description or help[0].upper() + help[1:] + ".")
+
+    b = command("bench", help="print per-call step times of the controllers and the vehicle")
     b.add_argument("--json", action="store_true",
                    help="print one JSON object mapping figure names (units in the name) to numbers")
     b.add_argument("--no-sitl", action="store_true",
@@ -63,14 +70,15 @@ def build_parser():
     b.add_argument("--compare-seeds", type=int, default=10,
                    help="seeds for the thesis-matrix figure (default 10; 100 takes minutes)")
     b.set_defaults(func=_bench)
-    f = sub.add_parser("fly", help="fly a mission (against the bundled vehicle unless --connect)")
+    f = command("fly", help="fly a mission (against the bundled vehicle unless --connect)")
     f.add_argument("mission", help="mission YAML file (or a name in configs/missions)")
     f.add_argument("--connect", default=None,
                    help="fly a vehicle at this MAVLink URL (udpin:0.0.0.0:14540, udp://:14540, "
                         "udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0:57600) instead of starting "
                         "the bundled one")
     f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid"), default=None,
-                   help="position controller (default: the mission's)")
+                   type=str.lower, help="position controller, in either case: ladrc or LADRC "
+                                        "(default: the mission's)")
     f.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
     f.add_argument("--lockstep", action="store_true",
                    help="bundled vehicle only: run as fast as the machine allows, deterministically")
@@ -92,11 +100,11 @@ def build_parser():
                         "vehicle is started with the same key)")
     f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     f.set_defaults(func=_fly)
-    i = sub.add_parser("identify", help="measure a vehicle's input model (how late it produces "
-                                        "a commanded acceleration) in a short flight",
-                       description="Take off, fly small acceleration doublets at hover on the "
-                                   "safe default gains, fit a lag plus dead time per axis, land; "
-                                   "write the result as a controller section (input_lag).")
+    i = command("identify", help="measure a vehicle's input model (how late it produces a "
+                                 "commanded acceleration) in a short flight",
+                description="Take off, fly small acceleration doublets at hover on the safe "
+                            "default gains, fit two lags plus a dead time per axis, land; write "
+                            "the result as a controller section (input_lag).")
     i.add_argument("mission", nargs="?", default="hover",
                    help="mission YAML whose vehicle, rate and limits are used (default: hover)")
     i.add_argument("--connect", default=None,
@@ -119,7 +127,7 @@ def build_parser():
                    help="MAVLink 2 signing secret file (as for fly)")
     i.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
     i.set_defaults(func=_identify)
-    c = sub.add_parser("compare", help="run an experiment (scenarios x controllers x seeds) and "
+    c = command("compare", help="run an experiment (scenarios x controllers x seeds) and "
                                        "write its report")
     c.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     c.add_argument("--out", default=None,
@@ -140,11 +148,12 @@ def build_parser():
     c.add_argument("--no-figures", action="store_true", help="tables only")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_compare)
-    t = sub.add_parser("tune", help="search controller bandwidths that minimise the RMS error "
+    t = command("tune", help="search controller bandwidths that minimise the RMS error "
                                     "over an experiment's scenarios and seeds")
     t.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
     t.add_argument("--controller", required=True,
-                   help="the experiment's controller (by name) whose gains are searched")
+                   help="the experiment's controller whose gains are searched, by its name in "
+                        "either case (LADRC or ladrc)")
     t.add_argument("--scenarios", action="append", default=None,
                    help="scenario names to tune on (shell pattern; repeat for several; "
                         "default: all)")
@@ -160,13 +169,20 @@ def build_parser():
                         "defaults are printed at the start)")
     t.add_argument("--out", default=None, help="controller YAML to write (default: stdout)")
     t.set_defaults(func=_tune)
-    p = sub.add_parser("plot", help="redraw the figures of a flight record or of any .tlog")
+    p = command("plot", help="redraw the figures of a flight record or of any .tlog")
     p.add_argument("target", help="a flight record folder or a .tlog file")
     p.add_argument("--out", default=None, help="where to write the PNGs")
     p.set_defaults(func=_plot)
     from sim import cli as sim_cli
 
-    s = sub.add_parser("sitl", help="run the bundled vehicle behind MAVLink, like PX4 SITL")
+    s = command(
+        "sitl", help="run the bundled vehicle behind MAVLink, like PX4 SITL",
+        description="Run the bundled simulated vehicle behind MAVLink, as a PX4 SITL (or, with "
+                    "--autopilot ardupilot, an ArduCopter SITL) would: it sends its offboard "
+                    "link to UDP port 14540 (plus --instance) and its ground-station link to "
+                    "14550, where mavadrc fly --connect, MAVSDK, MAVProxy or QGroundControl "
+                    "find it. Real time until Ctrl-C or --duration; --lockstep steps once per "
+                    "setpoint received.")
     sim_cli.add_arguments(s)
     s.set_defaults(func=_sitl)
     return parser

@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from .console import counted
 from .experiment import load_experiment, run_task
 
 RESULTS_VERSION = 1
@@ -275,8 +276,9 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
     seed_list = exp.seeds if seeds is None else list(range(int(seeds)))
     folder = Path(out) if out else Path("runs") / f"compare-{Path(exp.source).stem}"
     folder.mkdir(parents=True, exist_ok=True)
-    stream.write(f"{exp.name}: {len(exp.scenarios)} scenarios x {len(exp.controllers)} "
-                 f"controllers x {len(seed_list)} seeds"
+    stream.write(f"{exp.name}: {counted(len(exp.scenarios), 'scenario')} x "
+                 f"{counted(len(exp.controllers), 'controller')} x "
+                 f"{counted(len(seed_list), 'seed')}"
                  f"{' over MAVLink (lockstep)' if via == 'mavlink' else ''}"
                  f"{f' on {scheduler}' if scheduler else ''}\n")
     records, logs, wall = run_matrix(exp, seeds=seed_list, workers=workers, scheduler=scheduler,
@@ -296,7 +298,7 @@ def compare(path, *, out=None, seeds=None, workers=None, scheduler=None, via="in
 
     write_report(folder, exp, records, meta, logs if figures else {},
                  workers=default_workers(workers))
-    stream.write(f"{len(records)} runs in {wall:.1f} s ({len(records) / wall:.1f} runs/s; "
+    stream.write(f"{counted(len(records), 'run')} in {wall:.1f} s ({len(records) / wall:.1f} runs/s; "
                  f"{flown} flown, {flown / wall:.1f}/s, the rest seed-independent); "
                  f"report in {folder / 'report.md'}\n")
     return folder, exp, records

@@ -8,6 +8,11 @@ import sys
 import time
 
 
+def counted(n, noun):
+    """``n`` and ``noun``, plural unless n is 1: '1 seed', '3 seeds'."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 class Console:
     """Writes to ``out``; ``progress=False`` drops the live line (messages still go out)."""
 
@@ -37,7 +42,8 @@ class Console:
         self._last_print = now
         k = min(1.0, t / duration) if duration > 0 else 1.0
         bar = "#" * int(20 * k) + "-" * (20 - int(20 * k))
-        line = f"{segment:<18.18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m  [{bar}]"
+        # padded, never cut: 'transit to thesis_spiral' is read whole
+        line = f"{segment:<18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m  [{bar}]"
         if link is not None:
             line += f"  {link()}"
         if self._tty:

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import Section, YamlMap, config_path, load_yaml
+from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 from .mission import KINDS, _read_controller, mission_from_section
 from .record import error_figures
@@ -132,9 +132,10 @@ class Experiment:
 
 def _merged(defaults, item, skip=()):
     """``item`` over ``defaults`` (top-level keys, those in ``skip`` left out), keeping each
-    key's line."""
+    key's line, and for a key from the defaults that it was written there (errors about it
+    name ``defaults``, not the scenario)."""
     out = YamlMap(line=getattr(item, "line", None))
-    for src in (defaults, item):
+    for src, origin in ((defaults, "defaults"), (item, None)):
         if src is None:
             continue
         lines = getattr(src, "lines", None) or {}
@@ -142,8 +143,12 @@ def _merged(defaults, item, skip=()):
             if k in skip:
                 continue
             out[k] = v
+            out.lines.pop(k, None)
+            out.origins.pop(k, None)
             if k in lines:
                 out.lines[k] = lines[k]
+            if origin is not None:
+                out.origins[k] = origin
     return out
 
 
@@ -173,7 +178,7 @@ def experiment_from_text(source, text):
         seeds = list(range(n))
     defaults = top.raw("defaults", None)
     if defaults is not None and not isinstance(defaults, dict):
-        top.error("defaults", "must be a mapping of mission keys")
+        top.error("defaults", f"must be a mapping of mission keys (got {described(defaults)})")
     controllers = []
     for cs in top.sections("controllers"):
         spec = _read_controller(cs, kinds=CONTROLLER_KINDS)
@@ -184,10 +189,13 @@ def experiment_from_text(source, text):
     if not controllers:
         top.error("controllers", "must list at least one controller")
     scenarios = []
-    lines = getattr(top.data.get("scenarios"), "lines", None)
-    for n, raw in enumerate(top.raw("scenarios")):
+    raw_scenarios = top.raw("scenarios")
+    top.check("scenarios", isinstance(raw_scenarios, list),
+              f"must be a list (got {described(raw_scenarios)})")
+    lines = getattr(raw_scenarios, "lines", None)
+    for n, raw in enumerate(raw_scenarios):
         if not isinstance(raw, dict):
-            top.error("scenarios", f"item {n} must be a mapping")
+            top.error("scenarios", f"item {n} must be a mapping (got {described(raw)})")
         where = f"scenarios[{n}]"
         sec = Section(_merged(defaults, raw), source, where, line=lines[n] if lines else None)
         sname = sec.string("name")
@@ -221,6 +229,7 @@ def experiment_from_text(source, text):
         # the rest is a mission (without a controller, which the matrix supplies); its own
         # section refuses unknown keys
         msec = Section(_merged(defaults, raw, SCENARIO_KEYS), source, where, line=sec.line())
+        msec.allow(*SCENARIO_KEYS)
         mission = mission_from_section(msec, source, text, sname, require_land=False,
                                        controller=False)
         mission.settle_s = settle
@@ -235,9 +244,17 @@ def experiment_from_text(source, text):
              "at_most": gs.number("at_most", None), "at_least": gs.number("at_least", None),
              "text": gs.string("text", ""),
              "over": gs.string("over", "each", choices=("each", "all"))}
-        names = {c.name for c in controllers}
-        for c in g["controllers"] + ([g["ratio_to"]] if g["ratio_to"] else []):
-            gs.check("controllers", c in names, f"no controller called {c!r}")
+        names = [c.name for c in controllers]
+
+        def named(c, key):  # a controller's name, in either case
+            found = choose(c, names)
+            gs.check(key, found is not None, f"no controller called {c!r} (the experiment's: "
+                                             f"{', '.join(names)}{did_you_mean(c, names)})")
+            return found
+
+        g["controllers"] = [named(c, "controllers") for c in g["controllers"]]
+        if g["ratio_to"]:
+            g["ratio_to"] = named(g["ratio_to"], "ratio_to")
         gs.check("metric", g["at_most"] is not None or g["at_least"] is not None,
                  "give at_most or at_least")
         gs.finish()

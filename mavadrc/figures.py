@@ -103,18 +103,80 @@ def phase_spans(t, phase):
     return spans
 
 
+#: the least y span of an error (m) and of an acceleration (m/s^2) axes: below these a signal is
+#: drawn flat (its size is in the box or the legend), not as rounding noise blown up to fill
+MIN_SPAN_M = 1e-3
+MIN_SPAN_ACC = 1e-2
+#: rows the phase names may take above a time axis before one is left out
+LABEL_ROWS = 3
+
+
 def _shade_phases(axes, spans, label_top=True):
+    """Every other phase shaded; the phases' names above the first axes, centred on their spans
+    and staggered over up to :data:`LABEL_ROWS` rows so that no two overlap."""
     if len(spans) < 2:
         return
-    total = spans[-1][1] - spans[0][0]
     for k, (t0, t1, name) in enumerate(spans):
         for ax in axes:
             if k % 2:
                 ax.axvspan(t0, t1, color="0.92", lw=0, zorder=0)
-        if label_top and total > 0 and (t1 - t0) > 0.06 * total:
-            ax0 = axes[0]
-            ax0.text((t0 + t1) / 2, 1.02, name, transform=ax0.get_xaxis_transform(),
-                     ha="center", va="bottom", fontsize=8, color="0.35")
+    if label_top:
+        _phase_labels(axes[0], spans)
+
+
+def _phase_labels(ax, spans):
+    fig = ax.figure
+    fig.get_layout_engine().execute(fig)  # the axes where they will be saved
+    renderer = fig.canvas.get_renderer()
+    x0, x1 = ax.get_xlim()
+    scale = ax.bbox.width / (x1 - x0) if x1 > x0 else 0.0
+    pad = 4.0  # pixels between neighbours in a row
+    row_ends = [-math.inf] * LABEL_ROWS  # right edge (pixels from the axes' left) of each row
+    for t0, t1, name in spans:
+        mid = 0.5 * (t0 + t1)
+        text = ax.annotate(name, xy=(mid, 1.0), xycoords=ax.get_xaxis_transform(),
+                           xytext=(0.0, 3.0), textcoords="offset points", ha="center",
+                           va="bottom", fontsize=8, color="0.35")
+        half = 0.5 * text.get_window_extent(renderer).width
+        centre = (mid - x0) * scale
+        row = next((r for r, end in enumerate(row_ends) if centre - half >= end + pad), None)
+        if row is None:
+            text.remove()  # no room in any row: the shading still shows the phase
+            continue
+        row_ends[row] = centre + half
+        text.xyann = (0.0, 3.0 + 10.0 * row)
+
+
+def _metres(x):
+    """A length to three significant digits, in mm below 1 mm: '0.0340 m', '0.120 mm'."""
+    x = float(x)
+    if x != 0.0 and abs(x) < 1e-3:
+        return f"{1e3 * x:#.3g} mm"
+    return f"{x:#.3g} m"
+
+
+def _min_span(ax, span, which="y"):
+    """Widen each axis in ``which`` ('x', 'y', 'z') to at least ``span`` around its data:
+    values that differ only by floating-point rounding (an estimate of 1e-13 where the truth is
+    0) draw as a flat line at their value, not blown up to fill the axes on a 1e-13 scale."""
+    for name in which:
+        lo, hi = getattr(ax, f"get_{name}lim")()
+        if hi - lo < span:
+            mid = 0.5 * (lo + hi)
+            getattr(ax, f"set_{name}lim")(mid - 0.5 * span, mid + 0.5 * span)
+
+
+def label_3d(ax, xlabel, ylabel, zlabel):
+    """Label 3-D axes with few, small ticks and the labels set off from them (on a flat box
+    the altitude label otherwise lands on the north one, and ticks run into each other)."""
+    from matplotlib.ticker import MaxNLocator
+
+    for axis, n in ((ax.xaxis, 5), (ax.yaxis, 5), (ax.zaxis, 4)):
+        axis.set_major_locator(MaxNLocator(n))
+    ax.tick_params(labelsize=7, pad=0)
+    ax.set_xlabel(xlabel, labelpad=2)
+    ax.set_ylabel(ylabel, labelpad=2)
+    ax.set_zlabel(zlabel, labelpad=6)
 
 
 def _stat_box(ax, err, label="RMS"):
@@ -124,7 +186,7 @@ def _stat_box(ax, err, label="RMS"):
         return
     rms = math.sqrt(float(np.mean(err[ok] ** 2)))
     mx = float(np.max(np.abs(err[ok])))
-    ax.text(0.99, 0.95, f"{label} {rms:.3f} m, max {mx:.3f} m", transform=ax.transAxes,
+    ax.text(0.99, 0.95, f"{label} {_metres(rms)}, max {_metres(mx)}", transform=ax.transAxes,
             ha="right", va="top", fontsize=8,
             bbox=dict(boxstyle="round,pad=0.25", fc="white", ec="0.8", alpha=0.9))
 
@@ -137,15 +199,20 @@ def draw_path(out, pos, ref=None, title="Flight path"):
     has_ref = ref is not None and _finite(ref)
     fig = _figure("path3d")
     fig.suptitle(title)
+    # the 3-D axes' altitude label reaches past its box, which the layout does not see: room
+    # between the panels keeps it off the top view's north label
+    fig.get_layout_engine().set(wspace=0.12)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     top = fig.add_subplot(1, 2, 2)
     north, east, alt = pos[:, 0], pos[:, 1], -pos[:, 2]
+    # the vehicle under the reference: a few centimetres off, the reference still shows
+    ax.computed_zorder = False  # draw in the order given, not by depth
+    ax.plot(east, north, alt, color="C0", lw=2.0, alpha=0.8, label="vehicle", zorder=2)
+    top.plot(east, north, color="C0", lw=2.0, alpha=0.8, label="vehicle", zorder=2)
     if has_ref:
         ref = np.asarray(ref, dtype=float)
-        ax.plot(ref[:, 1], ref[:, 0], -ref[:, 2], label="reference", **_REF_STYLE)
-        top.plot(ref[:, 1], ref[:, 0], label="reference", **_REF_STYLE)
-    ax.plot(east, north, alt, color="C0", lw=1.4, label="vehicle")
-    top.plot(east, north, color="C0", lw=1.4, label="vehicle")
+        ax.plot(ref[:, 1], ref[:, 0], -ref[:, 2], label="reference", zorder=3, **_REF_STYLE)
+        top.plot(ref[:, 1], ref[:, 0], label="reference", zorder=3, **_REF_STYLE)
     ok = np.flatnonzero(np.isfinite(pos).all(axis=1))
     if ok.size:
         i0, i1 = ok[0], ok[-1]
@@ -166,17 +233,14 @@ def draw_path(out, pos, ref=None, title="Flight path"):
             span[2] = zmin
         ax.set_box_aspect((max(span[1], 1e-3) / horiz, max(span[0], 1e-3) / horiz,
                            float(np.clip(span[2] / horiz, 0.35, 1.0))))
-    from matplotlib.ticker import MaxNLocator
-
-    ax.zaxis.set_major_locator(MaxNLocator(5))
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_zlabel("altitude [m]")
+    _min_span(ax, MIN_SPAN_M, "xy")
+    label_3d(ax, "east [m]", "north [m]", "altitude [m]")
     ax.set_title("3-D path")
     ax.legend(loc="upper left", fontsize=8)
     top.set_xlabel("east [m]")
     top.set_ylabel("north [m]")
     top.set_title("top view")
+    _min_span(top, MIN_SPAN_M, "xy")
     top.set_aspect("equal", adjustable="datalim")
     top.grid(True, alpha=0.3)
     top.legend(fontsize=8)
@@ -203,6 +267,7 @@ def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel
         ax.plot(t, shown[:, k], color=_COLORS[k], lw=1.0)
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"{names[k]} error [m]")
+        _min_span(ax, MIN_SPAN_M)
         _stat_box(ax, shown[:, k])
     axes[3].plot(t, norm, color="k", lw=1.0)
     axes[3].set_ylabel("3-D error [m]")
@@ -214,8 +279,8 @@ def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel
     _shade_phases(list(axes), list(spans))
     if stats and stats.get("rms_error_m") is not None:
         try:
-            axes[3].set_title(f"summary.json: RMS {float(stats['rms_error_m']):.3f} m, "
-                              f"max {float(stats['max_error_m']):.3f} m", fontsize=9, loc="left")
+            axes[3].set_title(f"summary.json: RMS {_metres(stats['rms_error_m'])}, "
+                              f"max {_metres(stats['max_error_m'])}", fontsize=9, loc="left")
         except (TypeError, ValueError, KeyError):
             pass
     return _save(fig, out, "error")
@@ -246,6 +311,7 @@ def draw_disturbance(out, est=None, truth=None, note=None, title="Total disturba
                     bbox=dict(boxstyle="round,pad=0.4", fc="white", ec="0.7"))
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"{NED[k]} [m/s$^2$]")
+        _min_span(ax, MIN_SPAN_ACC)
         ax.grid(True, alpha=0.3)
     if has_est or has_truth:
         axes[0].legend(loc="upper right", fontsize=8)

@@ -56,6 +56,7 @@ from .identify import (MAX_DELAY_S, failure_text, fit, median_age, needs_identif
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
+from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
 
@@ -331,7 +332,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             custom_mode = self.link.custom_mode
         if custom_mode is None:
             return "unknown mode"
-        return self.seq.mode_name(custom_mode) if self.seq is not None else f"{custom_mode:#x}"
+        return mode_name(self.link.autopilot, custom_mode)
 
     def _warn_once(self, key, text, every=5.0):
         now = time.monotonic()

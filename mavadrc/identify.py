@@ -338,6 +338,9 @@ def main(args):
         return code
 
     try:
+        if not 0.3 <= args.altitude <= 100.0:
+            raise UsageError(f"--altitude {args.altitude:g}: give 0.3-100 m above the takeoff "
+                             "spot")
         mission = load_mission(args.mission)
         if args.connect is None:
             check_bundled(mission)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import ConfigError, Section, config_path, load_yaml
+from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
 
 from . import trajectories as T
 from .control.kernels import AGE_MAX
@@ -302,8 +302,9 @@ _REQUIRED = {
 def _read_segment(sec):
     keys = [k for k in sec.data]
     if len(keys) != 1 or keys[0] not in SEGMENTS:
+        hint = did_you_mean(keys[0], SEGMENTS) if len(keys) == 1 else ""
         sec.error(keys[0] if keys else None,
-                  f"each trajectory item is one of {', '.join(SEGMENTS)} (got {keys!r})")
+                  f"each trajectory item is one of {', '.join(SEGMENTS)} (got {keys!r}{hint})")
     kind = keys[0]
     body = sec.raw(kind)
     if body is None:
@@ -531,6 +532,8 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         segs[-1].error(None, "the last segment must be a land")
     if top.has("wind"):
         m.wind = top.raw("wind")
+        top.check("wind", isinstance(m.wind, (str, dict)),
+                  f"must be a wind name, a file or a mapping (got {described(m.wind)})")
         try:
             from sim.wind import load_wind
             load_wind(m.wind)  # checked now, before anything flies

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .console import counted
 from .experiment import SATURATION_SHARE, metric
 
 TABLE_METRICS = (
@@ -139,7 +140,7 @@ def findings(exp, groups):
                 why = f"{m:.3f}" if ok and math.isfinite(m) else "infeasible"
                 out.append(f"- **{c.name}**, {b['series']}: breaks at {sc.series['value']:g} "
                            f"{unit} (`{b['metric']}` {why} > {b['above']:g}).")
-    # ADRC vs LADRC, scenario by scenario, where both ran
+    # ADRC vs LADRC over the scenarios both could fly: the median ratio and its extremes
     kinds = {c.kind: c.name for c in exp.controllers}
     if "adrc" in kinds and "ladrc" in kinds:
         a, l = kinds["adrc"], kinds["ladrc"]
@@ -246,8 +247,9 @@ def write_report(folder, exp, records, meta, logs, workers=1):
     if exp.description:
         L += [exp.description.strip(), ""]
     ns = len(meta["seeds"])
-    L += [f"Experiment file `{exp.source}`; {meta['runs']} runs ({len(exp.scenarios)} scenarios "
-          f"x {len(exp.controllers)} controllers x {ns} seed{'s' if ns != 1 else ''}), "
+    L += [f"Experiment file `{exp.source}`; {counted(meta['runs'], 'run')} "
+          f"({counted(len(exp.scenarios), 'scenario')} x "
+          f"{counted(len(exp.controllers), 'controller')} x {counted(ns, 'seed')}), "
           f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
           f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
           f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", ""]
@@ -354,29 +356,33 @@ def make_figures(folder, exp, groups, logs, workers=1):
 
 
 def _scenario_figure(job):
-    """One scenario's four-panel figure (a picklable job: path, title, settle_s, runs)."""
+    """One scenario's four-panel figure (a picklable job: path, title, settle_s, runs).  Each
+    controller keeps its colour in every panel, named once in a legend above the panels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
+    from .figures import MIN_SPAN_ACC, MIN_SPAN_M, _min_span, label_3d
     from .inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
 
     path, title, settle_s, runs = job
-    fig = plt.figure(figsize=(12, 8))
+    colour = {name: f"C{k}" for k, (name, _, _) in enumerate(runs)}
+    fig = plt.figure(figsize=(12, 8), layout="constrained")
     ax3 = fig.add_subplot(2, 2, 1, projection="3d")
     ref = runs[0][2]
-    ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1, label="reference")
+    ax3.computed_zorder = False  # the reference drawn over the paths, not hidden under them
     for name, _, L in runs:
-        ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1, label=name)
-    ax3.set_xlabel("east (m)")
-    ax3.set_ylabel("north (m)")
-    ax3.set_zlabel("altitude (m)")
-    ax3.legend(fontsize=7)
+        ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1.2, color=colour[name],
+                 zorder=2)
+    ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1, zorder=3)
+    _min_span(ax3, MIN_SPAN_M, "xyz")
+    label_3d(ax3, "east (m)", "north (m)", "altitude (m)")
     ax = fig.add_subplot(2, 2, 2)
     for name, _, L in runs:
         e = np.linalg.norm(L[:, L_POS:L_POS + 3] - L[:, L_REF:L_REF + 3], axis=1)
-        ax.plot(L[:, L_T], e, lw=1, label=name)
+        ax.plot(L[:, L_T], e, lw=1, color=colour[name])
     ax.axvline(settle_s, color="grey", ls=":", lw=1)
     ax.set_yscale("log")
     ax.set_xlabel("mission time (s)")
@@ -386,24 +392,30 @@ def _scenario_figure(job):
     shown = False
     for name, kind, L in runs:
         if kind in ("adrc", "ladrc"):
-            ax.plot(L[:, L_T], L[:, L_Z3], lw=1, label=f"{name} z3 (x)")
+            ax.plot(L[:, L_T], L[:, L_Z3], lw=1, color=colour[name])
             shown = True
-    ax.plot(ref[:, L_T], ref[:, L_DIST], "k--", lw=1, label="true (x)")
+    ax.plot(ref[:, L_T], ref[:, L_DIST], "k:", lw=1.2)
+    _min_span(ax, MIN_SPAN_ACC)
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel("disturbance accel. x (m/s^2)")
-    ax.set_title("observer estimate vs truth" if shown else "true disturbance", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.set_title("observer estimate z3 (x) vs truth (dotted)" if shown
+                 else "true disturbance (x)", fontsize=9)
     ax = fig.add_subplot(2, 2, 4)
+    styles = (("U1 T (N)", "-"), ("U2 tau_x x100 (N m)", "--"), ("U3 tau_y x100 (N m)", "-."),
+              ("U4 tau_z x100 (N m)", ":"))
     for name, _, L in runs[:3]:
-        for k, (label, ls) in enumerate((("U1 T (N)", "-"), ("U2 tau_x", "--"),
-                                         ("U3 tau_y", "-."), ("U4 tau_z", ":"))):
-            scale = 1.0 if k == 0 else 100.0
-            ax.plot(L[:, L_T], L[:, L_WRENCH + k] * scale, ls, lw=0.8,
-                    label=f"{name} {label}{'' if k == 0 else ' x100 (N m)'}")
+        for k, (_, ls) in enumerate(styles):
+            ax.plot(L[:, L_T], L[:, L_WRENCH + k] * (1.0 if k == 0 else 100.0), ls=ls, lw=0.8,
+                    color=colour[name])
     ax.set_xlabel("mission time (s)")
-    ax.set_title("virtual inputs U1..U4", fontsize=9)
-    ax.legend(fontsize=6, ncol=2)
+    ax.set_title("virtual inputs U1..U4" + (f" of {', '.join(n for n, _, _ in runs[:3])}"
+                                             if len(runs) > 3 else ""), fontsize=9)
+    ax.legend(handles=[Line2D([], [], color="0.3", ls=ls, lw=1, label=label)
+                       for label, ls in styles], fontsize=7, ncol=2, loc="best")
+    handles = [Line2D([], [], color=colour[name], lw=1.5, label=name) for name, _, _ in runs]
+    handles.append(Line2D([], [], color="k", ls="--", lw=1, label="reference"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9,
+               frameon=False)
     fig.suptitle(title)
-    fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -6,28 +6,62 @@ motors' start-up delay, and the checks to make before the setpoint stream starts
 in the companion branches on the autopilot's name.
 """
 
-from .link import FlightError, M
+from .link import FlightError, M, mavutil  # mavutil as link imports it (MAVLink 2)
 
-PX4_MAIN = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
-            7: "STABILIZED", 8: "RATTITUDE", 9: "TERMINATION"}
-PX4_AUTO = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND",
-            8: "FOLLOW_TARGET", 9: "PRECLAND", 10: "VTOL_TAKEOFF"}
-PX4_OFFBOARD = (6, 0)
-PX4_HOLD = (4, 3)
-PX4_LAND = (4, 6)
-PX4_RTL = (4, 5)
 
-AP_MODES = {0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER",
-            6: "RTL", 7: "CIRCLE", 9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP",
-            15: "AUTOTUNE", 16: "POSHOLD", 17: "BRAKE", 18: "THROW", 19: "AVOID_ADSB",
-            20: "GUIDED_NOGPS", 21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG",
-            25: "SYSTEMID", 26: "AUTOROTATE", 27: "AUTO_RTL", 28: "TURTLE"}
-AP_GUIDED_NOGPS = 20
-AP_GUIDED = 4
-AP_LOITER = 5
-AP_LAND = 9
-AP_RTL = 6
-AP_SMART_RTL = 21
+def _px4_names():
+    """PX4's mode names by (main mode, sub mode) of its custom_mode, as QGroundControl and
+    PX4's console write them (POSCTL, AUTO.LOITER), from pymavlink's PX4_CUSTOM_* constants;
+    the few PX4 has that pymavlink does not name are added."""
+    names = {}
+    for key, value in vars(mavutil).items():
+        if key.startswith("PX4_CUSTOM_MAIN_MODE_") and key != "PX4_CUSTOM_MAIN_MODE_AUTO":
+            names[(value, 0)] = key[len("PX4_CUSTOM_MAIN_MODE_"):]
+        elif key.startswith("PX4_CUSTOM_SUB_MODE_AUTO_"):
+            names[(mavutil.PX4_CUSTOM_MAIN_MODE_AUTO, value)] = \
+                "AUTO." + key[len("PX4_CUSTOM_SUB_MODE_AUTO_"):]
+    # px4_custom_mode.h: TERMINATION, AUTO_PRECLAND and AUTO_VTOL_TAKEOFF
+    names.update({(9, 0): "TERMINATION", (4, 9): "AUTO.PRECLAND", (4, 10): "AUTO.VTOL_TAKEOFF"})
+    return names
+
+
+PX4_MODES = _px4_names()
+PX4_OFFBOARD = (mavutil.PX4_CUSTOM_MAIN_MODE_OFFBOARD, 0)
+PX4_HOLD = (mavutil.PX4_CUSTOM_MAIN_MODE_AUTO, mavutil.PX4_CUSTOM_SUB_MODE_AUTO_LOITER)
+PX4_LAND = (mavutil.PX4_CUSTOM_MAIN_MODE_AUTO, mavutil.PX4_CUSTOM_SUB_MODE_AUTO_LAND)
+PX4_RTL = (mavutil.PX4_CUSTOM_MAIN_MODE_AUTO, mavutil.PX4_CUSTOM_SUB_MODE_AUTO_RTL)
+
+
+def px4_mode_name(custom_mode):
+    """PX4's name of a heartbeat's custom_mode ('OFFBOARD', 'AUTO.LAND'), or its hex."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main != mavutil.PX4_CUSTOM_MAIN_MODE_AUTO:
+        sub = 0  # only AUTO has sub modes (PX4 leaves the byte 0 otherwise)
+    return PX4_MODES.get((main, sub), f"custom_mode {custom_mode:#x}")
+
+
+def ardupilot_mode_name(custom_mode):
+    """ArduCopter's name of a heartbeat's custom_mode ('GUIDED', 'LAND'; pymavlink's table),
+    or its number."""
+    return mavutil.mode_mapping_acm.get(custom_mode, f"custom_mode {custom_mode}")
+
+
+def mode_name(autopilot, custom_mode):
+    """The name of ``custom_mode`` on ``autopilot`` ('px4', 'ardupilot' or None: unknown)."""
+    if autopilot == "px4":
+        return px4_mode_name(custom_mode)
+    if autopilot == "ardupilot":
+        return ardupilot_mode_name(custom_mode)
+    return f"custom_mode {custom_mode:#x}"
+
+
+_AP_NUMBER = {name: number for number, name in mavutil.mode_mapping_acm.items()}
+AP_GUIDED_NOGPS = _AP_NUMBER["GUIDED_NOGPS"]
+AP_GUIDED = _AP_NUMBER["GUIDED"]
+AP_LOITER = _AP_NUMBER["LOITER"]
+AP_LAND = _AP_NUMBER["LAND"]
+AP_RTL = _AP_NUMBER["RTL"]
+AP_SMART_RTL = _AP_NUMBER["SMART_RTL"]
 
 
 class Sequence:
@@ -63,7 +97,7 @@ class Sequence:
         raise NotImplementedError
 
     def mode_name(self, custom_mode):
-        raise NotImplementedError
+        return mode_name(self.name, custom_mode)
 
     def preflight(self, flight):
         """Checks and settings before the setpoint stream (and a lockstep clock) starts."""
@@ -111,13 +145,6 @@ class PX4Sequence(Sequence):
     def is_landing(self, heartbeat):
         return self._modes(heartbeat) in (PX4_LAND, PX4_RTL)
 
-    def mode_name(self, custom_mode):
-        main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-        name = PX4_MAIN.get(main, f"main mode {main}")
-        if main == 4:
-            name += "." + PX4_AUTO.get(sub, str(sub))
-        return name
-
 
 class ArduPilotSequence(Sequence):
     """ArduCopter: GUIDED_NOGPS with GUID_OPTIONS bit 3 (thrust means thrust), LOITER, LAND."""
@@ -152,9 +179,6 @@ class ArduPilotSequence(Sequence):
 
     def is_landing(self, heartbeat):
         return heartbeat.custom_mode in (AP_LAND, AP_RTL, AP_SMART_RTL)
-
-    def mode_name(self, custom_mode):
-        return AP_MODES.get(custom_mode, f"mode {custom_mode}")
 
     def preflight(self, flight):
         link = flight.link

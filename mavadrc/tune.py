@@ -23,7 +23,10 @@ import sys
 
 import numpy as np
 
+from sim.yamlio import choose, did_you_mean
+
 from .compare import default_workers, process_pool
+from .console import counted
 from .experiment import experiment_from_text, load_experiment, run_inprocess
 
 INFEASIBLE_COST = 10.0
@@ -160,8 +163,12 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
 
     exp = load_experiment(path)
     names = [c.name for c in exp.controllers]
-    if controller not in names:
-        raise ValueError(f"no controller called {controller!r} (have: {', '.join(names)})")
+    named = choose(controller, names)  # LADRC or ladrc
+    if named is None:
+        raise ValueError(f"--controller {controller}: {exp.source} has no controller called "
+                         f"that (its controllers: {', '.join(names)}"
+                         f"{did_you_mean(controller, names)})")
+    controller = named
     j = names.index(controller)
     kind = exp.controllers[j].kind
     patterns = [scenarios] if isinstance(scenarios, str) else list(scenarios)
@@ -177,8 +184,8 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     limits = [(lo, hi) for _, lo, hi in space]
     obj = _Objective(exp.source, exp.text, j, idx, seed_list)
     n = default_workers(workers)
-    stream.write(f"tuning {controller} ({kind}) on {len(idx)} scenarios x {len(seed_list)} "
-                 f"seeds; search: " + ", ".join(f"{nm} {lo:g}..{hi:g}" for nm, lo, hi in space)
+    stream.write(f"tuning {controller} ({kind}) on {counted(len(idx), 'scenario')} x "
+                 f"{counted(len(seed_list), 'seed')}; search: " + ", ".join(f"{nm} {lo:g}..{hi:g}" for nm, lo, hi in space)
                  + " (--bounds NAME=LO:HI to change)\n")
     for text, names in judged_on_tuned(exp, controller, idx):
         stream.write(f"warning: the goal '{text}' is judged on scenarios tuned on "
@@ -236,8 +243,10 @@ def controller_yaml(result):
     lines = ([] if result["improved"] else
              ["# mavadrc tune found nothing better: these are the starting gains"])
     lines += [f"# mavadrc tune: RMS error after settling (geometric mean) {result['cost_m']:.4f} m "
-             f"(was {result['start_cost_m']:.4f} m) over {len(result['scenarios'])} scenarios x "
-             f"{len(result['seeds'])} seeds, {result['evaluations']} candidates",
+             f"(was {result['start_cost_m']:.4f} m) over "
+             f"{counted(len(result['scenarios']), 'scenario')} x "
+             f"{counted(len(result['seeds']), 'seed')}, "
+             f"{counted(result['evaluations'], 'candidate')}",
              "# search bounds: " + ", ".join(f"{nm} {lo:g}..{hi:g}"
                                              for nm, (lo, hi) in result["bounds"].items())
              + (f"; on a bound: {', '.join(result['on_bounds'])}" if result["on_bounds"]

@@ -11,6 +11,7 @@ value fails with the file, the line and the field, e.g.::
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from pathlib import Path
@@ -19,7 +20,8 @@ from typing import Any, Iterable, NoReturn
 import numpy as np
 import yaml
 
-__all__ = ["ConfigError", "YamlMap", "YamlList", "load_yaml", "Section", "REQUIRED"]
+__all__ = ["ConfigError", "YamlMap", "YamlList", "load_yaml", "Section", "REQUIRED", "described",
+           "closest", "did_you_mean", "choose"]
 
 
 class ConfigError(ValueError):
@@ -27,12 +29,17 @@ class ConfigError(ValueError):
 
 
 class YamlMap(dict):
-    """A dict loaded from YAML; ``lines[key]`` is the 1-based line of each key."""
+    """A dict loaded from YAML; ``lines[key]`` is the 1-based line of each key.
+
+    ``origins[key]``, when set, names the section a key was written in if that is not the
+    mapping's own (an experiment's ``defaults`` merged into each scenario): errors about the key
+    name that section."""
 
     def __init__(self, *args, line: int | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.line = line
         self.lines: dict[Any, int] = {}
+        self.origins: dict[Any, str] = {}
 
 
 class YamlList(list):
@@ -104,6 +111,50 @@ def load_yaml(path: str | Path, *, text: str | None = None) -> Any:
         raise ConfigError(f"{source}: invalid YAML: {exc}") from exc
 
 
+def described(value: Any) -> str:
+    """What a YAML value is, in words: 'a list', 'a mapping', "the text 'abc'", 'nothing'."""
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if value is None:
+        return "nothing"
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    return repr(value)
+
+
+def _folded(word: str) -> str:
+    # look-alike spellings compare equal: case, a zero for an o, a one for an l, - for _
+    return word.lower().replace("0", "o").replace("1", "l").replace("-", "_")
+
+
+def closest(word: Any, choices: Iterable[Any]) -> str | None:
+    """The choice closest to a misspelt ``word`` (difflib's ratio on look-alike-folded
+    spellings), or None when none is close."""
+    choices = [str(c) for c in choices]
+    folded = {}
+    for c in choices:
+        folded.setdefault(_folded(c), c)
+    close = difflib.get_close_matches(_folded(str(word)), list(folded), n=1, cutoff=0.6)
+    return folded[close[0]] if close else None
+
+
+def choose(value: str, choices: Iterable[str]) -> str | None:
+    """The choice ``value`` names, matched regardless of case (None if none)."""
+    choices = list(choices)
+    if value in choices:
+        return value
+    same = [c for c in choices if c.lower() == value.lower()]
+    return same[0] if len(same) == 1 else None
+
+
+def did_you_mean(word: Any, choices: Iterable[Any]) -> str:
+    """``"; did you mean 'wo'?"`` for a misspelt ``word``, or "" when no choice is close."""
+    near = closest(word, choices)
+    return f"; did you mean {near!r}?" if near is not None and near != word else ""
+
+
 class _Required:
     def __repr__(self) -> str:
         return "REQUIRED"
@@ -130,9 +181,10 @@ class Section:
         self.path = path
         self._line = getattr(data, "line", None) or line
         if not isinstance(data, dict):
-            self.error(None, f"must be a mapping (got {type(data).__name__})")
+            self.error(None, f"must be a mapping (got {described(data)})")
         self.data = data
         self._used: set = set()
+        self._known: set = set()  # every key asked about: the section's valid keys
 
     # -- reporting ---------------------------------------------------------------------------
     def line(self, key: Any = None) -> int | None:
@@ -144,7 +196,9 @@ class Section:
     def field_name(self, key: Any) -> str:
         if key is None:
             return self.path or "(top level)"
-        return f"{self.path}.{key}" if self.path else str(key)
+        origins = getattr(self.data, "origins", None) if hasattr(self, "data") else None
+        path = origins[key] if origins and key in origins else self.path
+        return f"{path}.{key}" if path else str(key)
 
     def error(self, key: Any, reason: str) -> NoReturn:
         """Raise a ConfigError about ``key`` (None: the mapping itself)."""
@@ -154,14 +208,27 @@ class Section:
 
     # -- access ------------------------------------------------------------------------------
     def has(self, key: str) -> bool:
+        """Whether ``key`` is given; it is one of the section's valid keys either way."""
+        self._known.add(key)
         return key in self.data
+
+    def allow(self, *keys: str) -> None:
+        """Count ``keys`` among the valid keys named when an unknown one is refused (keys read
+        from this mapping elsewhere)."""
+        self._known.update(keys)
 
     def raw(self, key: str, default: Any = REQUIRED) -> Any:
         self._used.add(key)
+        self._known.add(key)
         if key not in self.data:
             if default is REQUIRED:
-                where = f"{self.source}:{self._line}" if self._line is not None else self.source
-                raise ConfigError(f"{where}: {self.field_name(key)}: required field missing")
+                # a key nobody asked for that is spelt like it: the line to look at
+                near = closest(key, [k for k in self.data if k not in self._known])
+                line = self._line if near is None else self.line(near)
+                where = f"{self.source}:{line}" if line is not None else self.source
+                hint = "" if near is None else f"; is {near!r} a misspelling of it?"
+                raise ConfigError(f"{where}: {self.field_name(key)}: required field "
+                                  f"missing{hint}")
             return default
         return self.data[key]
 
@@ -216,8 +283,11 @@ class Section:
             self.error(key, f"must be a string (got {value!r})")
         if choices is not None:
             choices = list(choices)
-            if value not in choices:
-                self.error(key, f"must be one of {', '.join(choices)} (got {value!r})")
+            chosen = choose(value, choices)
+            if chosen is None:
+                self.error(key, f"must be one of {', '.join(choices)} "
+                                f"(got {value!r}{did_you_mean(value, choices)})")
+            return chosen
         return value
 
     def boolean(self, key: str, default: Any = REQUIRED) -> bool:
@@ -232,7 +302,7 @@ class Section:
         """The nested mapping under ``key`` as a Section."""
         value = self.raw(key)
         if not isinstance(value, dict):
-            self.error(key, f"must be a mapping (got {type(value).__name__})")
+            self.error(key, f"must be a mapping (got {described(value)})")
         return Section(value, self.source, self.field_name(key), line=self.line(key))
 
     def sections(self, key: str, default: Any = REQUIRED) -> list["Section"]:
@@ -241,7 +311,7 @@ class Section:
         if value is default and key not in self.data:
             return value
         if not isinstance(value, list):
-            self.error(key, f"must be a list (got {type(value).__name__})")
+            self.error(key, f"must be a list (got {described(value)})")
         lines = getattr(value, "lines", None)
         out = []
         for i, item in enumerate(value):
@@ -249,7 +319,7 @@ class Section:
             name = f"{self.field_name(key)}[{i}]"
             if not isinstance(item, dict):
                 where = f"{self.source}:{line}" if line is not None else self.source
-                raise ConfigError(f"{where}: {name}: must be a mapping (got {item!r})")
+                raise ConfigError(f"{where}: {name}: must be a mapping (got {described(item)})")
             out.append(Section(item, self.source, name, line=line))
         return out
 
@@ -263,8 +333,9 @@ class Section:
         unknown = [k for k in self.data if k not in self._used]
         if unknown:
             key = unknown[0]
-            known = sorted(str(k) for k in self._used)
-            self.error(key, f"unknown key (known keys: {', '.join(known)})")
+            known = sorted(str(k) for k in self._known)
+            self.error(key, f"unknown key{did_you_mean(key, known)} "
+                            f"(valid keys here: {', '.join(known)})")
 
 
 
@@ -284,5 +355,6 @@ def config_path(name_or_path: str | Path, folder: str) -> Path:
     path = CONFIG_DIR / folder / f"{text}.yaml"
     if not path.exists():
         shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
-        raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)})")
+        raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)}"
+                          f"{did_you_mean(text, shipped)})")
     return path

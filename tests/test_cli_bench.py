@@ -1,5 +1,6 @@
 """The bench command prints its figures as one JSON object with units in the names."""
 
+import importlib.util
 import json
 import math
 import subprocess
@@ -20,6 +21,26 @@ def test_bench_json_prints_the_control_and_physics_figures():
                 "physics_step_us", "vehicle_step_us", "batch_vehicle_steps_per_s"):
         assert math.isfinite(fig[key]) and fig[key] > 0.0, key
     assert all(k.endswith(UNITS) or k.startswith("ratio_") for k in fig)
+    for peer, key in (("pyadrc", "pyadrc_statespace_step_us"), ("rotorpy", "rotorpy_step_us")):
+        # a peer not installed: null, not NaN (which is not JSON)
+        assert fig[key] is None if importlib.util.find_spec(peer) is None else fig[key] > 0.0
+
+
+def test_bench_says_a_peer_is_not_installed_and_how_to_install_it(monkeypatch):
+    import io
+
+    from mavadrc import bench
+
+    figures = {"linear_adrc_step_us": 0.31, "pyadrc_statespace_step_us": None,
+               "ratio_pyadrc_over_linear_adrc": None, "rotorpy_step_us": None}
+    monkeypatch.setattr(bench, "all_figures", lambda *a: figures)
+    out = io.StringIO()
+    assert bench.main(out=out) == 0
+    lines = out.getvalue().splitlines()
+    assert lines[0].split() == ["linear_adrc_step_us", "0.31"]
+    for line, peer in zip(lines[1:], ("pyadrc", "pyadrc", "rotorpy")):
+        assert f"{peer} is not installed: pip install -e \".[bench]\"" in line, line
+    assert "nan" not in out.getvalue()
 
 
 def test_sitl_figures_measure_a_running_vehicle():

@@ -14,9 +14,11 @@ import pytest
 
 from mavadrc.cli import main
 from mavadrc.embedded import free_udp_port
+from mavadrc.experiment import experiment_from_text
 from mavadrc.fly import fly
 from mavadrc.link import FlightError, LinkError
 from mavadrc.mission import load_mission
+from sim.yamlio import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 MISSIONS = ROOT / "configs" / "missions"
@@ -172,6 +174,7 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
     err = capsys.readouterr().err
     bar_end = err.index("6/6 runs")
     assert "writing the report" in err[bar_end:]
+    assert "tiny: 2 scenarios x 3 controllers x 1 seed\n" in err  # not "1 seeds"
 
 
 def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
@@ -210,3 +213,189 @@ def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_pa
     assert not needs_compiling(mod.twice)  # compiled in this process
     mod.twice.overloads.clear()
     assert not needs_compiling(mod.twice)  # and in numba's on-disk cache
+
+
+# --- configuration files --------------------------------------------------------------------------
+
+def valid_keys(message):
+    """The keys a refusal lists after 'valid keys here:'."""
+    return set(message.split("valid keys here: ", 1)[1].rstrip(")").split(", "))
+
+
+HOVER = (MISSIONS / "hover.yaml").read_text()
+TAKEOFF_KEYS = {"altitude", "speed", "yaw_deg", "join"}
+MISSION_KEYS = {"name", "vehicle", "controller", "trajectory", "wind", "sim", "safety", "logging",
+                "transit_speed"}
+
+
+@pytest.mark.parametrize("old, new, line, field, meant, listed", [
+    ("rate_hz: 100", "rate_hz: 100\n  w0: 5", 7, "controller.w0", "wo",
+     {"wo", "wc", "b0", "kp_pos", "ki_vel", "input_lag", "eso_gains", "type", "rate_hz"}),
+    ("controller:", "contoller:", 4, "contoller", "controller", MISSION_KEYS),
+    ("speed: 0.5}", "sped: 0.5}", 8, "trajectory[0].takeoff.sped", "speed", TAKEOFF_KEYS),
+])
+def test_a_misspelt_key_lists_every_valid_key_and_the_closest(old, new, line, field, meant,
+                                                               listed, tmp_path, capsys):
+    path = tmp_path / "typo.yaml"
+    path.write_text(HOVER.replace(old, new, 1))
+    with pytest.raises(ConfigError) as err:
+        load_mission(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}:{line}: {field}: unknown key; did you mean '{meant}'?"), msg
+    keys = valid_keys(msg)
+    assert listed <= keys, listed - keys
+    if listed in (MISSION_KEYS, TAKEOFF_KEYS):
+        assert keys == listed
+    code, lines = run_cli(["fly", str(path), "--lockstep", "--out", str(tmp_path / "runs")],
+                          capsys)
+    assert code == 2
+    one_clear_line(lines, f"did you mean '{meant}'")
+
+
+def test_a_misspelt_required_key_points_at_the_misspelling(tmp_path):
+    path = tmp_path / "typo.yaml"
+    path.write_text(HOVER.replace("altitude: 1.0", "altitud: 1.0"))
+    with pytest.raises(ConfigError, match=rf"{path}:8: trajectory\[0\].takeoff.altitude: required "
+                                          "field missing; is 'altitud' a misspelling of it"):
+        load_mission(path)
+
+
+def test_a_misspelt_choice_or_segment_is_named_and_the_case_of_a_kind_does_not_matter(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(HOVER.replace("type: ladrc", "type: LADRC"))
+    assert load_mission(path).controller.kind == "ladrc"
+    path.write_text(HOVER.replace("type: ladrc", "type: ladcr"))
+    with pytest.raises(ConfigError, match=r"must be one of adrc, ladrc, pd, pid \(got 'ladcr'; "
+                                          r"did you mean 'ladrc'\?\)"):
+        load_mission(path)
+    path.write_text(HOVER.replace("- takeoff:", "- takof:"))
+    with pytest.raises(ConfigError, match=r"trajectory\[0\].takof: .*did you mean 'takeoff'"):
+        load_mission(path)
+
+
+def test_a_misspelt_shipped_name_is_named_with_the_closest(capsys):
+    code, lines = run_cli(["compare", "thesys", "-q"], capsys)
+    assert code == 2
+    one_clear_line(lines, "thesys: no such experiments config (shipped: gusts, robustness, "
+                          "thesis; did you mean 'thesis'?)")
+
+
+def test_a_misspelt_vehicle_key_is_named_with_the_closest(tmp_path):
+    from sim.params import load_vehicle
+
+    path = tmp_path / "v.yaml"
+    text = (ROOT / "configs" / "vehicles" / "crazyflie.yaml").read_text()
+    path.write_text(text.replace("\nrotor_drag:", "\nrotor_dragg:"))
+    with pytest.raises(ConfigError) as err:
+        load_vehicle(path)
+    assert "rotor_dragg: unknown key; did you mean 'rotor_drag'?" in str(err.value)
+    assert {"rotor_drag", "k_m", "motor_thrust_curve"} <= valid_keys(str(err.value))
+
+
+def test_a_misspelt_default_of_an_experiment_is_named_in_its_defaults(tmp_path, capsys):
+    path = tmp_path / "typo.yaml"
+    text = TINY.read_text()
+    path.write_text(text.replace("  settle_s: 4", "  setle_s: 4"))
+    with pytest.raises(ConfigError) as err:
+        experiment_from_text(str(path), path.read_text())
+    msg = str(err.value)
+    assert msg.startswith(f"{path}:6: defaults.setle_s: unknown key; did you mean 'settle_s'?")
+    assert {"settle_s", "group", "trajectory", "wind", "safety"} <= valid_keys(msg)
+    path.write_text(text.replace("  settle_s: 4", "  settle_s: -4"))
+    with pytest.raises(ConfigError, match=f"{path}:6: defaults.settle_s: must be >= 0"):
+        experiment_from_text(str(path), path.read_text())
+    code, lines = run_cli(["compare", str(path), "-q", "--out", str(tmp_path / "c")], capsys)
+    assert code == 2
+    one_clear_line(lines, "defaults.settle_s")
+
+
+@pytest.mark.parametrize("text, where", [
+    ("- takeoff: {altitude: 1}\n", ":1: (top level): must be a mapping (got a list)"),
+    ("just words\n", ": (top level): must be a mapping (got the text 'just words')"),
+    (HOVER.replace("controller:\n  type: ladrc\n  rate_hz: 100\n", "controller: [ladrc]\n"),
+     ":4: controller: must be a mapping (got a list)"),
+    (HOVER.replace("- hover: {duration: 5}", "- hover"), ":9: trajectory[1]: must be a mapping "
+                                                         "(got the text 'hover')"),
+    (HOVER.replace("name: hover", "name: hover\nwind: [1, 2]"),
+     ":3: wind: must be a wind name, a file or a mapping (got a list)"),
+])
+def test_a_list_or_a_scalar_where_a_mapping_belongs_is_said_in_words(text, where, tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_mission(path)
+    assert str(err.value) == f"{path}{where}"
+
+
+# --- the vehicle's words --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("autopilot, custom_mode, name", [
+    ("px4", 0x3040000, "AUTO.LOITER"), ("px4", 0x6040000, "AUTO.LAND"),
+    ("px4", 0x2040000, "AUTO.TAKEOFF"), ("px4", 0x5040000, "AUTO.RTL"),
+    ("px4", 6 << 16, "OFFBOARD"), ("px4", 3 << 16, "POSCTL"), ("px4", 2 << 16, "ALTCTL"),
+    ("px4", 0x63040000, "custom_mode 0x63040000"),
+    ("ardupilot", 4, "GUIDED"), ("ardupilot", 20, "GUIDED_NOGPS"), ("ardupilot", 9, "LAND"),
+    ("ardupilot", 5, "LOITER"), ("ardupilot", 6, "RTL"), ("ardupilot", 0, "STABILIZE"),
+    ("ardupilot", 99, "custom_mode 99"), (None, 0x3040000, "custom_mode 0x3040000"),
+])
+def test_flight_modes_are_named_as_the_autopilot_names_them(autopilot, custom_mode, name):
+    from mavadrc.sequence import mode_name, sequence_for
+
+    assert mode_name(autopilot, custom_mode) == name
+    if autopilot is not None:
+        assert sequence_for(autopilot).mode_name(custom_mode) == name
+
+
+# --- controller names in either case --------------------------------------------------------------
+
+def test_a_controller_is_named_in_either_case_and_a_wrong_name_lists_the_choices(capsys,
+                                                                                 tmp_path):
+    from mavadrc.cli import build_parser
+
+    for spelt in ("LADRC", "ladrc", "Ladrc"):
+        assert build_parser().parse_args(["fly", "hover", "--controller", spelt]).controller \
+            == "ladrc"
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["fly", "hover", "--controller", "lqr"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'lqr'" in err and "'adrc', 'ladrc', 'pd', 'pid'" in err
+    # tune names the experiment's controllers; a wrong name is refused before any search
+    code, lines = run_cli(["tune", str(TINY), "--controller", "LADCR", "--workers", "1",
+                           "--out", str(tmp_path / "t.yaml")], capsys)
+    assert code == 2
+    one_clear_line(lines, "--controller LADCR", "PD, LADRC, oracle", "did you mean 'LADRC'")
+    # an experiment's goals name its controllers in either case too
+    text = TINY.read_text().replace("controllers: [LADRC], metric", "controllers: [ladrc], metric")
+    text = text.replace("ratio_to: PD", "ratio_to: pd")
+    exp = experiment_from_text(str(tmp_path / "e.yaml"), text)
+    assert [(g["controllers"], g["ratio_to"]) for g in exp.goals] == [
+        (["LADRC"], "PD"), (["PD"], None), (["LADRC"], "PD")]
+
+
+# --- help and progress ----------------------------------------------------------------------------
+
+def test_every_command_has_a_description_and_the_top_names_every_controller():
+    from argparse import _SubParsersAction
+
+    from mavadrc.cli import build_parser
+
+    parser = build_parser()
+    assert "(ADRC, LADRC, PD, PID)" in parser.format_help()
+    (sub,) = [a for a in parser._actions if isinstance(a, _SubParsersAction)]
+    for name, command in sub.choices.items():
+        assert command.description and len(command.description) > 20, name
+    assert "14540" in sub.choices["sitl"].description
+
+
+def test_the_progress_line_keeps_a_long_segment_name_whole():
+    from mavadrc.console import Console, counted
+
+    out = io.StringIO()
+    Console(out).progress("transit to thesis_spiral", 3.0, 60.0, 0.25)
+    assert out.getvalue().startswith("transit to thesis_spiral t    3.0/60 s")
+    out = io.StringIO()
+    Console(out).progress("hover", 3.0, 60.0, 0.25)
+    assert out.getvalue().startswith("hover              t    3.0/60 s")  # columns kept
+    assert (counted(1, "seed"), counted(2, "seed"), counted(0, "run")) == ("1 seed", "2 seeds",
+                                                                           "0 runs")

@@ -279,6 +279,7 @@ def test_tune_shows_its_bounds_takes_new_ones_and_warns_on_an_edge(tmp_path):
                stream=out, bounds={"wc_xy": (0.5, 0.8)})
     text = out.getvalue()
     assert "wc_xy 0.5..0.8" in text and "--bounds" in text
+    assert "  generation 1/1: best " in text  # k/maxiter, not k alone
     assert res["improved"] and res["cost_m"] < res["start_cost_m"]
     assert "judged on scenarios tuned on (gusty hover)" in text
     assert "search bounds: wc_xy 0.5..0.8" in controller_yaml(res)
@@ -299,8 +300,9 @@ def test_tune_never_hands_back_gains_worse_than_its_start(tmp_path):
     from mavadrc.tune import controller_yaml, tune
 
     out = io.StringIO()
-    res = tune(TINY, "PD", scenarios="gusty*", seeds=1, maxiter=1, popsize=2, workers=1,
+    res = tune(TINY, "pd", scenarios="gusty*", seeds=1, maxiter=1, popsize=2, workers=1,
                stream=out, bounds={"wc_xy": (0.5, 0.6), "wc_z": (0.5, 0.6)})
+    assert res["controller"] == "PD"  # named in either case
     assert not res["improved"]
     assert res["cost_m"] == res["start_cost_m"]
     assert res["gains"]["wc"] == (2.5, 2.5, 3.0)

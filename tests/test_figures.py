@@ -257,3 +257,122 @@ def test_main_rejects_other_targets(tmp_path):
     (tmp_path / "summary.json").write_text(summary)
     with pytest.raises(SystemExit, match="not a flight record"):
         figures.main(tmp_path)
+
+
+# ------------------------------------------------------------------------------------- legibility
+
+@pytest.fixture
+def drawn(monkeypatch, tmp_path):
+    """The matplotlib Figure each drawing saves, by PNG name, laid out as saved."""
+    figs = {}
+    save = figures._save
+
+    def keep(fig, out, name):
+        figs[name] = fig
+        return save(fig, out, name)
+
+    monkeypatch.setattr(figures, "_save", keep)
+    return figs
+
+
+def _boxes(artists):
+    renderer = artists[0].figure.canvas.get_renderer()
+    return [a.get_window_extent(renderer) for a in artists]
+
+
+def _overlap(a, b):
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def test_phase_names_are_all_written_and_none_overlaps(drawn, tmp_path):
+    # a short takeoff beside a long name, then two more short phases: side by side they collide
+    t = np.arange(0.0, 53.0, 0.05)
+    spans = [(0.0, 3.8, "takeoff"), (3.8, 13.1, "transit to thesis_spiral"),
+             (13.1, 32.2, "thesis_spiral"), (32.2, 38.4, "transit to hover"),
+             (38.4, 40.4, "hover"), (40.4, 50.4, "land"), (50.4, 53.0, "touchdown")]
+    figures.draw_error(tmp_path, t, np.zeros((t.size, 3)) + 0.01, spans)
+    fig = drawn["error"]
+    fig.canvas.draw()
+    top = fig.axes[0]
+    labels = [a for a in top.texts if a.get_text() in {name for _, _, name in spans}]
+    assert sorted(a.get_text() for a in labels) == sorted(name for _, _, name in spans)
+    boxes = _boxes(labels)
+    for i in range(len(boxes)):
+        for j in range(i):
+            assert not _overlap(boxes[i], boxes[j]), (labels[i].get_text(), labels[j].get_text())
+        assert boxes[i].y0 >= top.bbox.y1  # above the axes, not on the data
+
+
+def test_small_errors_keep_their_digits_and_rounding_noise_draws_flat(drawn, tmp_path):
+    t = np.arange(0.0, 10.0, 0.02)
+    err = np.column_stack([0.0347 * np.sin(t), 1e-13 * t, np.full_like(t, -2e-4)])
+    figures.draw_error(tmp_path, t, err)
+    axes = drawn["error"].axes
+    boxes = [next(a.get_text() for a in ax.texts if a.get_text().startswith("RMS"))
+             for ax in axes[:3]]
+    assert boxes[0] == "RMS 0.0240 m, max 0.0347 m"
+    assert boxes[2] == "RMS 0.200 mm, max 0.200 mm"  # not "RMS 0.000 m"
+    lo, hi = axes[1].get_ylim()  # 1e-12 m of drift: a flat line, not a 1e-12 scale
+    assert hi - lo >= figures.MIN_SPAN_M
+    est = [(t, 3e-11 * t / 10.0)] * 3  # an estimate that is zero but for rounding
+    figures.draw_disturbance(tmp_path, est, [(t, np.zeros_like(t))] * 3)
+    for ax in drawn["disturbance"].axes:
+        lo, hi = ax.get_ylim()
+        assert hi - lo >= figures.MIN_SPAN_ACC
+
+
+def test_the_path_figure_shows_the_reference_over_the_vehicle_and_its_labels_apart(drawn,
+                                                                                    tmp_path):
+    t = np.arange(0.0, 40.0, 0.02)
+    ref, pos, _ = _circle(t)
+    ref[:, 2] -= 0.1 * t  # a spiral: climbing 4 m
+    pos[:, 2] -= 0.1 * t
+    figures.draw_path(tmp_path, pos, ref)
+    fig = drawn["path3d"]
+    ax3, top = fig.axes
+    assert not ax3.computed_zorder
+    for ax in (ax3, top):
+        z = {ln.get_label(): ln.get_zorder() for ln in ax.get_lines()}
+        assert z["reference"] > z["vehicle"]
+    fig.canvas.draw()
+    zlabel, north = _boxes([ax3.zaxis.label, top.yaxis.label])
+    assert not _overlap(zlabel, north)
+    for ticks, (lo, hi) in ((ax3.get_xticks(), ax3.get_xlim()), (ax3.get_yticks(), ax3.get_ylim())):
+        assert np.count_nonzero((ticks >= lo) & (ticks <= hi)) <= 6  # not crowded
+
+
+def test_a_scenario_figure_names_each_controller_once_outside_the_panels(monkeypatch, tmp_path):
+    import matplotlib.pyplot as plt
+
+    from mavadrc import report
+    from mavadrc.inprocess import L_DIST, L_POS, L_REF, L_REF_ACC, L_T, L_WRENCH, L_Z3
+
+    t = np.arange(0.0, 12.0, 0.01)
+    runs = []
+    for k, (name, kind) in enumerate((("PD", "pd"), ("ADRC", "adrc"), ("LADRC", "ladrc"),
+                                      ("PID", "pid"))):
+        L = np.zeros((t.size, L_REF_ACC + 3))
+        L[:, L_T] = t
+        L[:, L_REF + 2] = L[:, L_POS + 2] = -1.0
+        L[:, L_POS] = 1e-13 * k * t  # hovering, but for rounding
+        L[:, L_Z3] = 3e-11 * k * t / 12.0
+        L[:, L_WRENCH] = 0.3
+        runs.append((name, kind, L))
+    assert not runs[0][2][:, L_DIST].any()
+    kept = []
+    monkeypatch.setattr(plt, "close", kept.append)
+    report._scenario_figure((str(tmp_path / "s.png"), "attitude step", 3.0, runs))
+    (fig,) = kept
+    fig.canvas.draw()
+    (legend,) = fig.legends
+    assert [x.get_text() for x in legend.get_texts()] == ["PD", "ADRC", "LADRC", "PID",
+                                                          "reference"]
+    box = legend.get_window_extent()
+    assert not any(_overlap(box, ax.get_window_extent()) for ax in fig.axes)
+    ax3, _, dist, inputs = fig.axes
+    assert len(inputs.get_legend().get_texts()) == 4  # U1..U4 by line style, not 12 entries
+    lo, hi = dist.get_ylim()
+    assert hi - lo >= figures.MIN_SPAN_ACC
+    lo, hi = ax3.get_xlim()
+    assert hi - lo >= figures.MIN_SPAN_M
+    plt.close(fig)
