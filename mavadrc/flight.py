@@ -131,6 +131,11 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
         # the observer at the defaults' ratio to the controller given
         ratio = 5.0 if told else SAFE_WO / SAFE_WC
         gains["wo"] = tuple(ratio * float(w) for w in given["wc"])
+    if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
+            and "wc" not in given and "wo" not in given:
+        # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
+        # vehicle they are slowed until the loop keeps its margin
+        gains = fit_to_margin(spec, kind, gains, tuple(float(x) for x in identified))
     if gains.get("input_lag") == "auto":
         if identified is None:
             raise FlightError("input_lag: auto is measured on the vehicle flown: in flight (the "
@@ -139,6 +144,39 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
                               "`mavadrc identify`; otherwise give the lags in seconds")
         gains["input_lag"] = tuple(float(x) for x in identified)
     return gains
+
+
+#: the share of the identified horizontal lag the default gains keep as delay margin (on the
+#: single-lag model the observers fly).  Calibrated on PX4 SIH (63 % in 0.25-0.27 s, a response
+#: of two lags and a dead time, slower at 1 Hz than one lag): wc 2.5 / wo 12.5, a margin of 23 %
+#: of the lag, swung +-13 deg; wc 1.5 (50 %) 4-5 deg; wc 1.24 (64 %) about 4 deg; this share
+#: gives it wc 1.09 / wo 5.45.  The bundled vehicles (0.125 s) get wc 2.0-2.2.
+MARGIN_SHARE = 0.75
+
+
+def fit_to_margin(spec, kind, gains, lag):
+    """``gains`` (with ``wc`` and ``wo``) as they are if the controller's delay margin on the
+    plant ``lag`` (s per axis, the observers' input model) is at least :data:`MARGIN_SHARE` of
+    the horizontal lag; else both bandwidths scaled down by one factor until it is (bisection,
+    to 2 %).  Returns the gains flown, with ``input_lag`` set to ``lag``."""
+    base = {**gains, "input_lag": tuple(lag)}
+    need = MARGIN_SHARE * max(lag[0], lag[1])
+
+    def scaled(f):
+        return {**base, "wc": tuple(round(f * float(w), 3) for w in gains["wc"]),
+                "wo": tuple(round(f * float(w), 3) for w in gains["wo"])}
+
+    def holds(f):
+        c = make_controller(spec, hover_thrust=0.5, kind=kind, gains=scaled(f))
+        return delay_margin(c) >= need
+
+    if holds(1.0):
+        return base
+    lo, hi = 0.05, 1.0
+    while hi - lo > 0.02:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if holds(mid) else (lo, mid)
+    return scaled(round(lo, 3))
 
 
 def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
@@ -267,6 +305,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.identification = None
         self._id_windows = None
         self._id_data = []
+        self._id_job = None  # the fit, running in a thread (real time)
         self.summary = None
         self.context = {}  # what the caller adds to the record (command line, versions, ...)
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
@@ -405,7 +444,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _identify_step(self, s, t):
         """Keep the samples of the identify segment; at its end fit the input model and fly
-        the mission's controller with it from the next sample on."""
+        the mission's controller with it.  The fit and the new controller's delay margin take
+        a good part of a second: in lockstep (the vehicle waits) they are made at once, in real
+        time in a thread while the safe controller flies on, and the new controller takes over
+        at the first sample after they are ready."""
+        if self._id_job is not None:
+            if not self._id_job.done():
+                return
+            job, self._id_job = self._id_job, None
+            return self._identified(s, *job.result())
         if self._id_windows is None or self.identification is not None:
             return
         start = min(w[1] for w in self._id_windows) - MAX_DELAY_S - 0.1
@@ -416,23 +463,56 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if t < end:
             return
         d = np.asarray(self._id_data)
+        self._id_data = []
+        if self.lockstep:
+            return self._identified(s, *self._identify_fit(d))
+        import concurrent.futures
+        pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="identify")
+        self._id_job = pool.submit(self._identify_fit, d)
+        pool.shutdown(wait=False)
+
+    def _identify_fit(self, d):
+        """The fit of the identify segment's samples ``d``, and, if it holds, the mission's
+        controller made with it: (record, controller or None, gains, delay margin)."""
         rec = fit(d[:, 0], d[:, 1:4], d[:, 4:7], self._id_windows)
         rec["sample_age_s"] = median_age(d[:, 0], d[:, 7], self._id_windows)
         rec["flown"] = f"in flight, on system {self.link.target_system} ({self.link.autopilot})"
+        if failure_text(rec) is not None:
+            return rec, None, None, None
+        gains = resolve_gains(self.m.controller, self.kind,
+                              identified=observer_lag(rec, self.m.controller))
+        ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind,
+                               rate_hz=self.rate, gains=gains)
+        margin = delay_margin(ctrl)
+        ctrl.reset(np.zeros(3))
+        ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
+        return rec, ctrl, gains, margin
+
+    def _identified(self, s, rec, ctrl, gains, margin):
+        """The identification's result, from sample ``s`` on."""
         self.identification = rec
-        self._id_data = []
         self.say(f"input model identified: {summary_line(rec)}")
-        why = failure_text(rec)
-        if why is not None:
-            self._warn_once("identify", f"{why}: the safe default LADRC flies the rest of the "
-                                        "mission", every=0.0)
+        if ctrl is None:
+            self._warn_once("identify", f"{failure_text(rec)}: the safe default LADRC flies the "
+                                        "rest of the mission", every=0.0)
             return
         old = self.ctrl
-        self.ctrl = self._make_controller(self.hover)
+        self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
         carry_over(self.ctrl, old, s.pos, s.vel)
-        lag = ", ".join(f"{x:.3f}" for x in self.gains["input_lag"])
-        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s from here; "
+        lag = ", ".join(f"{x:.3f}" for x in gains["input_lag"])
+        bw = ""
+        if "wc" in gains and "wo" in gains:
+            bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
+                  f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
+        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{bw} from here; "
                  f"{margin_text(self.delay_margin)}")
+        slow = max(gains["input_lag"][0], gains["input_lag"][1])
+        if self.delay_margin is not None and self.delay_margin < MARGIN_SHARE * slow:
+            self._warn_once("margin", f"the delay margin ({1e3 * self.delay_margin:.0f} ms) is "
+                            f"under {MARGIN_SHARE:.0%} of the lag identified "
+                            f"({1e3 * slow:.0f} ms): the mission's gains are fast for this "
+                            "vehicle and a limit cycle is likely (without wc and wo the "
+                            "defaults are slowed to keep that margin)", every=0.0)
 
     # --- the loop ------------------------------------------------------------------------------
 

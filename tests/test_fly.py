@@ -38,8 +38,9 @@ def fly_quiet(mission, tmp_path, **kw):
 
 BOUNDS = {  # max 3-D error after the settling window (m)
     # ladrc flies the mission's tuned gains and the input model identified in flight; adrc and pd
-    # their defaults, adrc with the mission's input model (the fast defaults)
-    "thesis_spiral_wind": {"ladrc": 0.05, "adrc": 0.12, "pd": 0.5},
+    # their defaults, adrc with the identified input model (the told defaults, slowed to keep
+    # 3/4 of the lag as margin: wc 2.0 at 100 Hz; measured 0.126 m, 0.11 before the slowing)
+    "thesis_spiral_wind": {"ladrc": 0.05, "adrc": 0.15, "pd": 0.5},
     # a PD mission with no input model: the observers fly the safe defaults (wc 1, wo 4;
     # measured 0.21 and 0.24 m)
     "thesis_circle": {"ladrc": 0.3, "adrc": 0.3, "pd": 0.15},

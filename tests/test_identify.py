@@ -176,3 +176,31 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     osc = summary.get("attitude_oscillation")
     assert osc is None or osc["amplitude_deg"] < 3.0
     assert not any("limit cycle" in w for w in summary["warnings"])
+
+
+def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
+    """Told only the lag it measured, a controller without gains of its own keeps a delay
+    margin of 3/4 of that lag: the bundled vehicles' response (0.125 s) keeps most of the fast
+    defaults, PX4 SIH's (0.25 s) gets about wc 1.1 (wc 2.5 swung +-13 deg there), and gains the
+    mission gives are flown as given."""
+    from mavadrc.flight import MARGIN_SHARE, make_controller, resolve_gains
+    from mavadrc.margin import delay_margin
+    from mavadrc.mission import ControllerSpec
+
+    def gains(lag, **given):
+        spec = ControllerSpec(kind="ladrc", rate_hz=100.0, gains={"input_lag": "auto", **given})
+        return spec, resolve_gains(spec, identified=lag)
+
+    bundled = gains((0.125, 0.125, 0.052))[1]
+    slow_spec, slow = gains((0.25, 0.25, 0.075))
+    assert 1.8 <= bundled["wc"][0] <= 2.5
+    assert 0.9 <= slow["wc"][0] <= 1.3 and slow["wo"][0] == pytest.approx(5 * slow["wc"][0])
+    ctrl = make_controller(slow_spec, hover_thrust=0.5, gains=slow)
+    assert delay_margin(ctrl) >= MARGIN_SHARE * 0.25
+    # 10 % faster would not keep it: the largest such gains, not merely safe ones
+    faster = {**slow, "wc": tuple(1.1 * w for w in slow["wc"]),
+              "wo": tuple(1.1 * w for w in slow["wo"])}
+    assert delay_margin(make_controller(slow_spec, hover_thrust=0.5, gains=faster)) < \
+        MARGIN_SHARE * 0.25
+    given = gains((0.25, 0.25, 0.075), wc=[2.0, 2.0, 2.5], wo=[10.0, 10.0, 12.5])[1]
+    assert given["wc"] == [2.0, 2.0, 2.5] or tuple(given["wc"]) == (2.0, 2.0, 2.5)
