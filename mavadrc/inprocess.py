@@ -3,7 +3,9 @@
 This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink flight of
 :mod:`mavadrc.flight` against ``python -m sim --lockstep``, with the wire taken out:
 
-* the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware);
+* the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware), changed
+  as the mission's ``sim:`` section says (:func:`mavadrc.mission.vehicle_flown`) while what the
+  companion is told (the hover thrust, ``input_lag: auto``) comes from the file;
 * the same timeline: on the ground until armed, the thrust spooled up
   (:func:`mavadrc.flight.spool_thrust`), the mission clock started at
   :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side), or
@@ -43,7 +45,8 @@ from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
 from sim.personality import personality
 from sim.sensors import TYPICAL_NOISE
-from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into
+from sim.vehicle import (SimVehicle, advance_wind_into, advance_wind_measured_into,
+                         vehicle_variant)
 from sim.wind import WIND_SCRATCH
 
 from .control import geometry as G
@@ -363,8 +366,12 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                **dict(vehicle_options or {})}
     if mission.noise:  # the server's --noise; its latency is the lag below
         options.setdefault("sensors", {"noise": TYPICAL_NOISE})
-    v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,
-                   attitude_controller=mission.attitude_controller, **options)
+    told = _vehicle_params(mission.vehicle or "crazyflie")  # the file: what the companion knows
+    flown = vehicle_variant(told, mass_scale=mission.mass_scale,
+                            motor_thrust_curve=mission.motor_thrust_curve,
+                            attitude_bandwidth_scale=mission.attitude_bandwidth_scale)
+    v = SimVehicle(flown, wind=wind, seed=seed, attitude_controller=mission.attitude_controller,
+                   **options)
     h = 1.0 / spec.rate_hz
     dt = v.physics_dt
     per = int(round(h / dt))
@@ -377,7 +384,7 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                          f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
-                           vehicle=v.params, attitude_controller=mission.attitude_controller)
+                           vehicle=told, attitude_controller=mission.attitude_controller)
     # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START.  The
     # samples of the last ``lag`` periods before the arming are what the companion gets in the
     # first ``lag`` periods after it (the sensor latency); the mission's origin is the first
