@@ -50,7 +50,7 @@ import numpy as np
 from sim.yamlio import Section, YamlMap, config_path, load_yaml
 
 from .mission import KINDS, _read_controller, mission_from_section
-from .record import error_figures
+from .record import attitude_oscillation, error_figures
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
 # the vehicle's own attitude loop when a scenario asks for the one matching the controller
@@ -270,15 +270,23 @@ def metric(record, path):
 
 def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, thrust_min,
               thrust_max, dt, aborted=None, yaw=None, ref_yaw=None, ref_acc=None,
-              true_dist=None, hover_thrust=None):
+              true_dist=None, hover_thrust=None, roll=None, pitch=None):
     """The record's figures from a run's per-step arrays (either path).
 
     With the reference acceleration, the simulator's true disturbance and the hover thrust, the
     thrust the *scenario* demands is checked too: |a_ref - d - g e3| * hover / g against the
-    thrust limit, whatever the controller did."""
+    thrust limit, whatever the controller did.  With the vehicle's roll and pitch, the
+    roll/pitch oscillation over the tracking window (:func:`mavadrc.record.attitude_oscillation`:
+    ``after_settle.attitude_oscillation_deg`` and ``_hz``): a limit cycle shows there whatever
+    the position error says, and the joining manoeuvre does not."""
     t = np.asarray(t, dtype=float)
     out = error_figures(t, ref, pos)
     out["after_settle"] = error_figures(t, ref, pos, settle_s)
+    if roll is not None and pitch is not None:
+        keep = t >= settle_s
+        osc = attitude_oscillation(t[keep], np.asarray(roll)[keep], np.asarray(pitch)[keep])
+        out["after_settle"]["attitude_oscillation_deg"] = osc["amplitude_deg"] if osc else math.nan
+        out["after_settle"]["attitude_oscillation_hz"] = osc["frequency_hz"] if osc else math.nan
     join = t < settle_s
     out["joining"] = error_figures(t[join], np.asarray(ref)[join], np.asarray(pos)[join])
     track = t >= settle_s
@@ -342,8 +350,8 @@ def _yaw_step(t, yaw, ref_yaw):
 def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     """Scenario i x controller j x seed on the fast path; returns (record, log or None).
     ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
-    from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T,
-                            L_THRUST, L_YAW, fly_inprocess)
+    from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_PITCH, L_POS, L_REF, L_REF_ACC,
+                            L_REF_YAW, L_ROLL, L_T, L_THRUST, L_YAW, fly_inprocess)
 
     m = exp.mission(i, j, spec)
     t0 = time.perf_counter()
@@ -353,7 +361,8 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     cols = {"t": L[:, L_T], "ref": L[:, L_REF:L_REF + 3], "pos": L[:, L_POS:L_POS + 3],
             "acc_cmd": L[:, L_ACC_CMD:L_ACC_CMD + 3], "acc": L[:, L_ACC:L_ACC + 3],
             "thrust": L[:, L_THRUST], "ref_acc": L[:, L_REF_ACC:L_REF_ACC + 3],
-            "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW]}
+            "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW],
+            "roll": L[:, L_ROLL], "pitch": L[:, L_PITCH]}
     rec = _run_record(exp, i, j, seed, "inprocess", m, cols, r.duration, r.aborted,
                       r.hover_thrust, wall)
     return rec, (L if keep_log else None)
@@ -412,7 +421,8 @@ def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, 
                          thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
                          dt=1.0 / m.controller.rate_hz, aborted=aborted,
                          ref_acc=cols["ref_acc"], true_dist=cols["dist"],
-                         hover_thrust=hover_thrust, **yaw))
+                         hover_thrust=hover_thrust, roll=cols.get("roll"),
+                         pitch=cols.get("pitch"), **yaw))
     if c.kind != "oracle":
         from .margin import spec_margin
 

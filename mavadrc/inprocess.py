@@ -78,7 +78,9 @@ L_WRENCH = 27  # 4: achieved [T, tau_x, tau_y, tau_z] (the thesis's U1..U4)
 L_YAW = 31
 L_REF_YAW = 32
 L_REF_ACC = 33  # 3
-NLOG = 36
+L_ROLL = 36  # the vehicle's roll and pitch (its estimate, as ATTITUDE reports it) at the period
+L_PITCH = 37
+NLOG = 38
 
 STATUS_OK = 0
 STATUS_BREACH = 1
@@ -236,6 +238,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 row[L_WRENCH + i] = fs[A.FS_WRENCH + i]
             row[L_YAW] = syaw[d]
             row[L_REF_YAW] = yaw_ref
+            row[L_ROLL] = eul[0]  # of this period (_store above)
+            row[L_PITCH] = eul[1]
             for i in range(3):
                 row[L_REF_ACC + i] = refs[j, 6 + i]
             j += 1

@@ -15,6 +15,7 @@ TABLE_METRICS = (
     ("RMS z", "after_settle.rms_error_xyz_m.2"),
     ("RMS 3-D", "after_settle.rms_error_m"),
     ("max 3-D", "after_settle.max_error_m"),
+    ("roll/pitch osc. deg", "after_settle.attitude_oscillation_deg"),
     ("joining max", "joining.max_error_m"),
     ("effort", "effort_rms_accel"),
     ("thrust sat. s", "thrust_saturated_s"),
@@ -259,7 +260,10 @@ def write_report(folder, exp, records, meta, logs, workers=1):
               "flown; `--rerun-identical` flies them all).", ""]
     L += ["Errors are position errors in metres: RMS and max over the tracking window (after "
           "each scenario's settling time, which covers the takeoff and the joining transient), "
-          "mean ± std over seeds; `joining max` is the largest error before it. `effort` is the "
+          "mean ± std over seeds; `joining max` is the largest error before it. `roll/pitch osc. "
+          "deg` is the 99th percentile of the vehicle's roll or pitch about its 1 s running "
+          "mean over the same window (the worse axis; in process only): a limit cycle shows "
+          "there whatever the error says. `effort` is the "
           "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
           "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
           "command. A run is **infeasible** when the scenario demands more thrust than the "
