@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 from .compare import default_workers, process_pool
-from .experiment import experiment_from_text, load_experiment, run_inprocess
+from .experiment import experiment_from_text, goal_covers, load_experiment, run_inprocess
 
 INFEASIBLE_COST = 10.0
 TUNING_SEEDS = 1000  # the first seed a search uses
@@ -146,7 +146,7 @@ def judged_on_tuned(exp, controller, idx):
     for g in exp.goals:
         if controller not in g["controllers"] and g.get("ratio_to") != controller:
             continue
-        hit = sorted(n for n in tuned if fnmatch.fnmatchcase(n, g["scenario"]))
+        hit = sorted(n for n in tuned if goal_covers(g, n))
         if hit:
             out.append((g["text"] or g["metric"], hit))
     return out
