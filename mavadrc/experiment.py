@@ -386,20 +386,34 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
             out["thrust_demand_max"] = float(demand[track][ok].max())
     completed = aborted is None and t.size > 0 and t[-1] >= duration - 1e-6
     out["completed"] = bool(completed)
+    # the reference climbs away from the ground and the vehicle never follows it up
+    grounded = t.size > 0 and _never_lifted(np.asarray(ref, dtype=float),
+                                            np.asarray(pos, dtype=float))
     out["aborted"] = aborted
     out["duration_s"] = float(t[-1]) if t.size else 0.0
-    out["feasible"] = bool(completed and share <= SATURATION_SHARE
+    out["feasible"] = bool(completed and not grounded and share <= SATURATION_SHARE
                            and need_share <= SATURATION_SHARE)
     if not completed:
         out["infeasible_reason"] = f"{aborted or 'stopped early'} at {out['duration_s']:.1f} s"
     elif need_share > SATURATION_SHARE:
         out["infeasible_reason"] = (f"the scenario needs up to {out['thrust_demand_max']:.1f}x "
                                     "the vehicle's maximum thrust")
+    elif grounded:
+        out["infeasible_reason"] = "the vehicle never left the ground"
     elif share > SATURATION_SHARE:
         out["infeasible_reason"] = f"thrust at its limit {100 * share:.0f} % of the tracking window"
     if yaw is not None and ref_yaw is not None:
         out["yaw_step"] = _yaw_step(t, np.asarray(yaw), np.asarray(ref_yaw))
     return out
+
+
+def _never_lifted(ref, pos):
+    """Whether a run that starts on the ground (the first sample) stayed there while its
+    reference rose half a metre above it (:data:`mavadrc.ground.LIFTOFF_HEIGHT` never reached)."""
+    from .ground import LIFTOFF_HEIGHT
+
+    ground = pos[0, 2]
+    return bool(np.max(ground - ref[:, 2]) > 0.5 and np.max(ground - pos[:, 2]) < LIFTOFF_HEIGHT)
 
 
 def _yaw_step(t, yaw, ref_yaw):

@@ -278,8 +278,13 @@ def check_goals(exp, groups):
                 text = f"{what}: {scope}`{g['metric']}` {bound} on {g['scenario']!r}"
             detail = f"{what} = {m:.4g} over {len(part)} scenarios pooled" if len(parts) == 1 \
                 and len(scs) > 1 else f"worst: {m:.4g} ({part[0].name})"
-            if not ok and math.isfinite(m) and g["at_most"] is not None:
+            bad = [r for sc in part for r in groups.get((sc.name, c), [])
+                   if not r.get("feasible", False)]
+            if not ok and math.isfinite(m) and g["at_most"] is not None and m > g["at_most"]:
                 detail += f", missed by {m / g['at_most']:.2f}x"
+            if not ok and bad:
+                detail += (f", infeasible: {bad[0].get('infeasible_reason', 'infeasible')} "
+                           f"({bad[0]['scenario']})")
             out.append((text, ok, detail))
     return out
 
