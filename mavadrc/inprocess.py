@@ -33,6 +33,7 @@ The ``oracle`` controller exists only here: the PD law with the simulator's true
 acceleration fed forward, the floor any controller with the same feedback gains could reach.
 """
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -387,6 +388,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "
                          f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
+    if oracle:  # the PD law with the oracle's own gains (a spec of another kind flies defaults)
+        spec = dataclasses.replace(spec, kind="pd")
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind,
                            vehicle=told, attitude_controller=mission.attitude_controller)
     # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START.  The

@@ -227,3 +227,23 @@ def test_a_vehicle_that_never_leaves_the_ground_is_no_feasible_run(knobs):
     assert not rec["feasible"] and rec["infeasible_reason"] == "the vehicle never left the ground"
     rec, _ = run_inprocess(knobs, _index(knobs, "nominal"), 1, 0, spec=safe)
     assert rec["feasible"]
+
+
+def test_the_oracle_flies_its_own_feedback_gains(knobs):
+    """The oracle is PD with the true disturbance fed forward, at the gains it is given (those
+    of the controller it is the floor for), not at PD's defaults (wc 2.5 / 3)."""
+    import dataclasses
+
+    from mavadrc.experiment import ControllerEntry
+
+    base = knobs.controllers[0].spec  # PD's defaults as gains
+    exp = dataclasses.replace(knobs, controllers=[
+        ControllerEntry("oracle", dataclasses.replace(base, kind="oracle")),
+        ControllerEntry("oracle fast", dataclasses.replace(base, kind="oracle",
+                                                           gains={"wc": (6.0, 6.0, 6.0)}))])
+    slow, _ = run_inprocess(exp, _index(exp, "heavy"), 0, 0)
+    fast, _ = run_inprocess(exp, _index(exp, "heavy"), 1, 0)
+    pd, _ = run_inprocess(knobs, _index(knobs, "heavy"), 0, 0)
+    assert slow["after_settle"]["max_error_m"] == pytest.approx(pd["after_settle"]["max_error_m"],
+                                                               rel=1e-3)
+    assert fast["after_settle"]["max_error_m"] < 0.5 * slow["after_settle"]["max_error_m"]
