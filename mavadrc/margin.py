@@ -47,9 +47,12 @@ def _plant(tau, h):
 
 
 class _Loop:
-    """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay."""
+    """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay.
+    :meth:`step` takes a disturbance acceleration ``d`` added to the plant's (held over the
+    step); with ``feedforward`` the controller is also given -d as its reference acceleration
+    (the oracle's law: the true disturbance fed forward)."""
 
-    def __init__(self, ctrl, tau, n):
+    def __init__(self, ctrl, tau, n, feedforward=False):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
         self.alpha = float(ctrl._IN[0, IN_ALPHA])
@@ -57,15 +60,18 @@ class _Loop:
         self.n = n
         self.ns = K.NS
         self.size = self.ns + 1 + 3 + n  # channel state, input model, plant, command buffer
+        self.feedforward = feedforward
+        h = self.h
+        self.Bd = np.array([0.5 * h * h, h, 0.0])  # a held disturbance acceleration
 
-    def step(self, z):
+    def step(self, z, d=0.0):
         ns, n = self.ns, self.n
         s = z[:ns].copy()
         obs = z[ns]
         x = z[ns + 1:ns + 4]
         buf = z[ns + 4:]
         y, ydot = x[0], x[1]
-        u = K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, 0.0)
+        u = K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, -d if self.feedforward else 0.0)
         obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
         s[K.S_U] = obs
         if n:
@@ -73,10 +79,12 @@ class _Loop:
             buf = np.concatenate([[u], buf[:-1]])
         else:
             applied = u
-        x = self.A @ x + self.B * applied
+        x = self.A @ x + self.B * applied + self.Bd * d
         return np.concatenate([s, [obs], x, buf])
 
-    def radius(self):
+    def linearised(self):
+        """(J, b, c) of the loop linearised at rest: z' = J z + b d, position = c z, over the
+        states that take part in it."""
         z0 = np.zeros(self.size)
         s = np.zeros(K.NS)
         K.channel_start(s, self.p, 0.0, 0.0)  # at rest, started (not waiting for a first sample)
@@ -86,12 +94,18 @@ class _Loop:
             d = np.zeros(self.size)
             d[j] = _EPS
             J[:, j] = (self.step(z0 + d) - self.step(z0 - d)) / (2.0 * _EPS)
+        b = (self.step(z0, _EPS) - self.step(z0, -_EPS)) / (2.0 * _EPS)
         # entries of the channel's state vector that this kind does not use carry over
         # unchanged and touch nothing: not part of the loop
         keep = [j for j in range(self.size)
                 if not (abs(J[j, j] - 1.0) < 1e-9 and np.count_nonzero(np.abs(J[j]) > 1e-9) == 1
                         and np.count_nonzero(np.abs(J[:, j]) > 1e-9) == 1)]
-        J = J[np.ix_(keep, keep)]
+        c = np.zeros(self.size)
+        c[self.ns + 1] = 1.0  # the plant's position
+        return J[np.ix_(keep, keep)], b[keep], c[keep]
+
+    def radius(self):
+        J, _, _ = self.linearised()
         return float(max(abs(np.linalg.eigvals(J))))
 
 
@@ -120,6 +134,23 @@ def delay_margin(ctrl, tau=None, delay=0.0, max_extra_s=MAX_EXTRA_S):
             return stable * h
         stable = extra
     return math.inf
+
+
+def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False):
+    """|G_d(j w)|: the position error (m) per m/s^2 of a sinusoidal disturbance acceleration at
+    each angular frequency of ``omegas`` (rad/s), the loop linearised at rest on the plant (lag
+    ``tau``, default the controller's input model; ``delay`` s) and sampled at its step;
+    ``feedforward``: the disturbance also fed forward (the oracle).  NaN where the loop is
+    unstable (it has no steady response)."""
+    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))), feedforward)
+    J, b, c = loop.linearised()
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
+    if max(abs(np.linalg.eigvals(J))) >= 1.0:
+        return np.full(omegas.shape, math.nan)
+    eye = np.eye(J.shape[0])
+    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * loop.h) * eye - J, b))
+                     for w in omegas])
 
 
 def margin_record(margin):

@@ -247,3 +247,22 @@ def test_the_oracle_flies_its_own_feedback_gains(knobs):
     assert slow["after_settle"]["max_error_m"] == pytest.approx(pd["after_settle"]["max_error_m"],
                                                                rel=1e-3)
     assert fast["after_settle"]["max_error_m"] < 0.5 * slow["after_settle"]["max_error_m"]
+
+
+def test_the_linearised_disturbance_response_is_the_closed_form():
+    """|G_d(jw)| of PD (kp = wc^2, kd = 2 wc) on a plant whose acceleration lags the command by
+    tau: 1 / |s^2 + (kd s + kp) / (tau s + 1)|; with the disturbance fed forward (the oracle)
+    the lag lets (1 - 1 / (tau s + 1)) of it through."""
+    from mavadrc.control import PositionController
+    from mavadrc.margin import disturbance_response
+
+    pd = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(4.0, 4.0, 4.0))
+    w = np.array([0.3, 1.0, 4.0])
+    s = 1j * w
+    lag = 1.0 / (0.13 * s + 1.0)
+    loop = s ** 2 + (8.0 * s + 16.0) * lag
+    assert disturbance_response(pd, w, tau=0.13) == pytest.approx(abs(1.0 / loop), rel=0.02)
+    assert disturbance_response(pd, w, tau=0.13, feedforward=True) == \
+        pytest.approx(abs((1.0 - lag) / loop), rel=0.02)
+    fast = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(40.0, 40.0, 40.0))
+    assert np.all(np.isnan(disturbance_response(fast, w, tau=0.13)))  # unstable: no response
