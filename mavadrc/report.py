@@ -475,13 +475,16 @@ def margins_figure(path, exp, groups):
     for ax, b in zip(axes.flat, panels):
         series = _series(exp, b["series"])
         xs = np.array([value(sc, b) for sc in series])
-        top = 10.0 * b["above"]
+        curves = []
         for c in exp.controllers:
             ys = np.array([stat(groups.get((sc.name, c.name), []), b["metric"])[0]
                            for sc in series])
             bad = np.array([not feasible(groups.get((sc.name, c.name), [])) for sc in series])
-            line, = ax.plot(xs, np.where(bad, np.nan, np.minimum(ys, top)), "o-", ms=3, lw=1,
-                            label=c.name)
+            curves.append((c.name, np.where(bad, np.nan, ys), bad))
+        shown = [y for _, ys, _ in curves for y in ys if np.isfinite(y)]
+        top = 1.5 * max(shown + [2.0 * b["above"]])  # infeasible runs: crosses up here
+        for name, ys, bad in curves:
+            line, = ax.plot(xs, ys, "o-", ms=3, lw=1, label=name)
             if bad.any():
                 ax.plot(xs[bad], np.full(bad.sum(), top), "x", color=line.get_color(), ms=6)
         ax.axhline(b["above"], color="k", ls="--", lw=0.8)
@@ -496,7 +499,7 @@ def margins_figure(path, exp, groups):
         ax.axis("off")
     axes.flat[0].legend(fontsize=6)
     fig.suptitle(f"{exp.name}: margins (dashed: the bound; x: infeasible)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.97))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return True
