@@ -52,7 +52,14 @@ class EmbeddedVehicle:
     def __init__(self, mission, *, lockstep=False, rate_hz=100.0, workdir=None, seed=None,
                  wind=None, log_path=None, start="auto", signing_key=None, params=None):
         port = free_udp_port()
-        cmd = [sys.executable, "-m", "sim", "--vehicle", mission.vehicle or "crazyflie",
+        vehicle = mission.vehicle or "crazyflie"
+        if (mission.mass_scale, mission.motor_thrust_curve,
+                mission.attitude_bandwidth_scale) != (1.0, None, 1.0):
+            from .mission import vehicle_flown
+
+            vehicle = workdir / "vehicle.yaml"  # the file, changed as the mission's sim: says
+            vehicle.write_text(yaml.safe_dump(vehicle_flown(mission).as_file()))
+        cmd = [sys.executable, "-m", "sim", "--vehicle", str(vehicle),
                "--seed", str(mission.seed if seed is None else seed),
                "--autopilot", mission.autopilot,
                "--attitude-controller", mission.attitude_controller,

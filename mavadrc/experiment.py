@@ -16,19 +16,27 @@ An experiment file (``configs/experiments/*.yaml``)::
       - name: circle 2 m/s
         group: PD on the circle, no wind (thesis 6.2.1)
         series: {name: circle speed, value: 2.0, unit: m/s}   # for "where does it break"
+                                  # (or a list: a nominal run can be a point of several)
         trajectory:               # as a mission's; may end in the air
           - takeoff: {altitude: 1.0, speed: 0.5}
           - circle: {radius: 10, speed: 2, altitude: 1, duration: 41.4, join: direct}
         wind: breeze_1ms
         thesis: {PD: {max_error_xyz_m: [0.018, 0.033, 0.031], note: "fig. 8a"}}
+        sample_rate_hz: 50        # every controller at 50 Hz here, one step per position sample
+        input_model_scale: 2      # every observer's input model (input_lag) x2 of the truth
+        sim: {mass_scale: 1.3}    # the vehicle against its file (mission keys, README)
     goals:                        # claims the report checks, measured
       - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
          metric: after_settle.max_error_m, at_most: 0.05}
       - {scenario: "*", controllers: [ADRC], metric: after_settle.rms_error_m,
          ratio_to: PD, at_most: 0.333, over: all}   # all: pooled over the scenarios;
                                                      # each (default): every scenario
+      - {scenario: [nominal, "latency [24]0 ms"], ...}  # a list of name patterns
     breaks:                       # where a controller breaks along a series
       - {series: circle speed, metric: after_settle.max_error_m, above: 0.5}
+      - {series: mass, metric: after_settle.max_error_m, above: 0.1, nominal: 1}
+                                  # judged outward from the nominal value, both ways (default:
+                                  # the smallest value, upwards)
 
 Each run is one mission flown by :func:`mavadrc.inprocess.fly_inprocess` (the fast path) or, with
 ``via="mavlink"``, by ``mavadrc fly --lockstep`` against the bundled vehicle; both give the same
@@ -39,6 +47,8 @@ the scenario was feasible for it.
 """
 
 import copy
+import dataclasses
+import fnmatch
 import functools
 import math
 import time
@@ -50,7 +60,7 @@ import numpy as np
 from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 from .mission import KINDS, _read_controller, mission_from_section
-from .record import error_figures
+from .record import attitude_oscillation, error_figures
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
 # the vehicle's own attitude loop when a scenario asks for the one matching the controller
@@ -80,6 +90,19 @@ class Scenario:
     thesis: dict = field(default_factory=dict)  # controller name or kind -> reported figures
     attitude_match: bool = False
     note: str = ""
+    #: every controller runs at this rate here (Hz; None: its own), one control step per
+    #: position sample: the rate the vehicle's samples come at and the controller's step
+    sample_rate_hz: float = None
+    #: every observer's input model (``input_lag``, given or ``auto``) times this, against the
+    #: vehicle's true response; controllers without one fly as they are
+    input_model_scale: float = 1.0
+    #: every series the scenario is a point of (``series`` is the first): a nominal run can
+    #: be the shared point of several series
+    points: list = field(default_factory=list)
+
+    def point(self, name):
+        """The scenario's point ({name, value, unit}) of series ``name``, or None."""
+        return next((p for p in self.points if p["name"] == name), None)
 
     @functools.cached_property
     def random(self):
@@ -127,6 +150,17 @@ class Experiment:
         m.controller = spec if spec is not None else self.controllers[j].spec
         if sc.attitude_match:
             m.attitude_controller = MATCHING_ATTITUDE[self.controllers[j].kind]
+        if sc.sample_rate_hz is not None:
+            m.controller = dataclasses.replace(m.controller, rate_hz=sc.sample_rate_hz)
+        if sc.input_model_scale != 1.0 and "input_lag" in m.controller.gains:
+            if m.controller.gains["input_lag"] == "auto":
+                # scaled once identified (mavadrc.identify.with_identified)
+                m.input_model_scale = sc.input_model_scale
+            else:
+                m.controller = dataclasses.replace(m.controller, gains={
+                    **m.controller.gains,
+                    "input_lag": tuple(sc.input_model_scale * float(t)
+                                       for t in m.controller.gains["input_lag"])})
         return m
 
 
@@ -153,7 +187,10 @@ def _merged(defaults, item, skip=()):
 
 
 #: scenario keys that belong to the experiment, not to the scenario's mission
-SCENARIO_KEYS = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller")
+SCENARIO_KEYS = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller",
+                 "sample_rate_hz", "input_model_scale")
+#: the physics rate of the bundled vehicle (Hz): a scenario's sample rate divides it
+PHYSICS_RATE_HZ = 1000.0
 
 
 def load_experiment(path):
@@ -204,12 +241,16 @@ def experiment_from_text(source, text):
         group = sec.string("group", "")
         note = sec.string("note", "")
         settle = sec.number("settle_s", 0.0, ge=0.0)
-        series = None
-        if sec.has("series"):
-            ss = sec.section("series")
-            series = {"name": ss.string("name"), "value": ss.number("value"),
-                      "unit": ss.string("unit", "")}
+        points = []
+        for ss in (sec.sections("series") if isinstance(sec.raw("series", None), list)
+                   else [sec.section("series")] if sec.has("series") else []):
+            p = {"name": ss.string("name"), "value": ss.number("value"),
+                 "unit": ss.string("unit", "")}
+            ss.check("name", all(q["name"] != p["name"] for q in points),
+                     f"the scenario is already a point of {p['name']!r}")
             ss.finish()
+            points.append(p)
+        series = points[0] if points else None
         thesis = {}
         if sec.has("thesis"):
             ts = sec.section("thesis")
@@ -226,6 +267,12 @@ def experiment_from_text(source, text):
                 thesis[str(ctrl_name)] = fig
             ts.finish()
         match = sec.string("attitude_controller", None, choices=("match",)) == "match"
+        rate = sec.number("sample_rate_hz", None, ge=5.0, le=500.0)
+        if rate is not None:
+            sec.check("sample_rate_hz", abs(PHYSICS_RATE_HZ / rate - round(PHYSICS_RATE_HZ / rate))
+                      < 1e-9, f"must divide the vehicle's {PHYSICS_RATE_HZ:g} Hz physics rate "
+                              "(25, 50, 100, 125, 200, 250, 500 Hz ...)")
+        model_scale = sec.number("input_model_scale", 1.0, gt=0.0, le=10.0)
         # the rest is a mission (without a controller, which the matrix supplies); its own
         # section refuses unknown keys
         msec = Section(_merged(defaults, raw, SCENARIO_KEYS), source, where, line=sec.line())
@@ -233,12 +280,20 @@ def experiment_from_text(source, text):
         mission = mission_from_section(msec, source, text, sname, require_land=False,
                                        controller=False)
         mission.settle_s = settle
-        scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note))
+        if match and mission.attitude_bandwidth_scale != 1.0:
+            sec.error("attitude_controller", "match flies other attitude loops than the PX4-like "
+                                             "one sim.attitude_bandwidth_scale scales")
+        scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note,
+                                  rate, model_scale, points))
     if not scenarios:
         top.error("scenarios", "must list at least one scenario")
     goals = []
     for gs in top.sections("goals", []):
-        g = {"scenario": gs.string("scenario"), "metric": gs.string("metric"),
+        pats = gs.raw("scenario")
+        pats = pats if isinstance(pats, list) else [gs.string("scenario")]
+        gs.check("scenario", bool(pats) and all(isinstance(p, str) for p in pats),
+                 "must be a scenario name pattern or a list of them")
+        g = {"scenario": " | ".join(pats), "patterns": list(pats), "metric": gs.string("metric"),
              "controllers": [str(c) for c in gs.raw("controllers")],
              "ratio_to": gs.string("ratio_to", None),
              "at_most": gs.number("at_most", None), "at_least": gs.number("at_least", None),
@@ -261,12 +316,24 @@ def experiment_from_text(source, text):
         goals.append(g)
     breaks = []
     for bs in top.sections("breaks", []):
-        breaks.append({"series": bs.string("series"), "metric": bs.string("metric"),
-                       "above": bs.number("above")})
+        b = {"series": bs.string("series"), "metric": bs.string("metric"),
+             "above": bs.number("above"), "nominal": bs.number("nominal", None)}
+        values = [sc.point(b["series"])["value"] for sc in scenarios if sc.point(b["series"])]
+        bs.check("series", bool(values), f"no scenario has series {b['series']!r}")
+        if b["nominal"] is not None:
+            shown = ", ".join(f"{v:g}" for v in sorted(values))
+            bs.check("nominal", any(abs(v - b["nominal"]) < 1e-12 for v in values),
+                     f"must be one of the series' values ({shown})")
         bs.finish()
+        breaks.append(b)
     top.finish()
     return Experiment(name, source, text, description, controllers, scenarios, seeds, goals,
                       breaks)
+
+
+def goal_covers(g, name):
+    """Whether goal ``g`` judges the scenario called ``name`` (any of its name patterns)."""
+    return any(fnmatch.fnmatchcase(name, p) for p in g["patterns"])
 
 
 # --- one run -------------------------------------------------------------------------------------
@@ -287,15 +354,23 @@ def metric(record, path):
 
 def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, thrust_min,
               thrust_max, dt, aborted=None, yaw=None, ref_yaw=None, ref_acc=None,
-              true_dist=None, hover_thrust=None):
+              true_dist=None, hover_thrust=None, roll=None, pitch=None):
     """The record's figures from a run's per-step arrays (either path).
 
     With the reference acceleration, the simulator's true disturbance and the hover thrust, the
     thrust the *scenario* demands is checked too: |a_ref - d - g e3| * hover / g against the
-    thrust limit, whatever the controller did."""
+    thrust limit, whatever the controller did.  With the vehicle's roll and pitch, the
+    roll/pitch oscillation over the tracking window (:func:`mavadrc.record.attitude_oscillation`:
+    ``after_settle.attitude_oscillation_deg`` and ``_hz``): a limit cycle shows there whatever
+    the position error says, and the joining manoeuvre does not."""
     t = np.asarray(t, dtype=float)
     out = error_figures(t, ref, pos)
     out["after_settle"] = error_figures(t, ref, pos, settle_s)
+    if roll is not None and pitch is not None:
+        keep = t >= settle_s
+        osc = attitude_oscillation(t[keep], np.asarray(roll)[keep], np.asarray(pitch)[keep])
+        out["after_settle"]["attitude_oscillation_deg"] = osc["amplitude_deg"] if osc else math.nan
+        out["after_settle"]["attitude_oscillation_hz"] = osc["frequency_hz"] if osc else math.nan
     join = t < settle_s
     out["joining"] = error_figures(t[join], np.asarray(ref)[join], np.asarray(pos)[join])
     track = t >= settle_s
@@ -320,20 +395,34 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
             out["thrust_demand_max"] = float(demand[track][ok].max())
     completed = aborted is None and t.size > 0 and t[-1] >= duration - 1e-6
     out["completed"] = bool(completed)
+    # the reference climbs away from the ground and the vehicle never follows it up
+    grounded = t.size > 0 and _never_lifted(np.asarray(ref, dtype=float),
+                                            np.asarray(pos, dtype=float))
     out["aborted"] = aborted
     out["duration_s"] = float(t[-1]) if t.size else 0.0
-    out["feasible"] = bool(completed and share <= SATURATION_SHARE
+    out["feasible"] = bool(completed and not grounded and share <= SATURATION_SHARE
                            and need_share <= SATURATION_SHARE)
     if not completed:
         out["infeasible_reason"] = f"{aborted or 'stopped early'} at {out['duration_s']:.1f} s"
     elif need_share > SATURATION_SHARE:
         out["infeasible_reason"] = (f"the scenario needs up to {out['thrust_demand_max']:.1f}x "
                                     "the vehicle's maximum thrust")
+    elif grounded:
+        out["infeasible_reason"] = "the vehicle never left the ground"
     elif share > SATURATION_SHARE:
         out["infeasible_reason"] = f"thrust at its limit {100 * share:.0f} % of the tracking window"
     if yaw is not None and ref_yaw is not None:
         out["yaw_step"] = _yaw_step(t, np.asarray(yaw), np.asarray(ref_yaw))
     return out
+
+
+def _never_lifted(ref, pos):
+    """Whether a run that starts on the ground (the first sample) stayed there while its
+    reference rose half a metre above it (:data:`mavadrc.ground.LIFTOFF_HEIGHT` never reached)."""
+    from .ground import LIFTOFF_HEIGHT
+
+    ground = pos[0, 2]
+    return bool(np.max(ground - ref[:, 2]) > 0.5 and np.max(ground - pos[:, 2]) < LIFTOFF_HEIGHT)
 
 
 def _yaw_step(t, yaw, ref_yaw):
@@ -359,8 +448,8 @@ def _yaw_step(t, yaw, ref_yaw):
 def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     """Scenario i x controller j x seed on the fast path; returns (record, log or None).
     ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
-    from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_T,
-                            L_THRUST, L_YAW, fly_inprocess)
+    from .inprocess import (L_ACC, L_ACC_CMD, L_DIST, L_PITCH, L_POS, L_REF, L_REF_ACC,
+                            L_REF_YAW, L_ROLL, L_T, L_THRUST, L_YAW, fly_inprocess)
 
     from .identify import with_identified
     m = with_identified(exp.mission(i, j, spec), exp.controllers[j].kind, seed)
@@ -371,7 +460,8 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     cols = {"t": L[:, L_T], "ref": L[:, L_REF:L_REF + 3], "pos": L[:, L_POS:L_POS + 3],
             "acc_cmd": L[:, L_ACC_CMD:L_ACC_CMD + 3], "acc": L[:, L_ACC:L_ACC + 3],
             "thrust": L[:, L_THRUST], "ref_acc": L[:, L_REF_ACC:L_REF_ACC + 3],
-            "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW]}
+            "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW],
+            "roll": L[:, L_ROLL], "pitch": L[:, L_PITCH]}
     rec = _run_record(exp, i, j, seed, "inprocess", m, cols, r.duration, r.aborted,
                       r.hover_thrust, wall)
     return rec, (L if keep_log else None)
@@ -432,7 +522,8 @@ def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, 
                          thrust_min=m.controller.thrust_min, thrust_max=m.controller.thrust_max,
                          dt=1.0 / m.controller.rate_hz, aborted=aborted,
                          ref_acc=cols["ref_acc"], true_dist=cols["dist"],
-                         hover_thrust=hover_thrust, **yaw))
+                         hover_thrust=hover_thrust, roll=cols.get("roll"),
+                         pitch=cols.get("pitch"), **yaw))
     if c.kind != "oracle":
         from .margin import spec_margin
 

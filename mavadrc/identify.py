@@ -226,7 +226,10 @@ ALTITUDE = 1.0
 def identification_mission(mission, calm=True):
     """``mission`` reduced to the identification: take off to :data:`ALTITUDE`, fly the
     doublets, on the safe default LADRC at the mission's rate and limits, in calm air (the rest
-    of the vehicle's setting, its sensors, latency, link and seed, as the mission has them)."""
+    of the vehicle's setting, its sensors, latency, link and seed, as the mission has them).
+    The vehicle is its file as given: a mission that varies it (``sim: {mass_scale,
+    motor_thrust_curve, attitude_bandwidth_scale}``, a robustness study) flies with the model
+    identified before the change, as a vehicle loaded or worn after its identification would."""
     import dataclasses
 
     from .flight import default_gains
@@ -239,7 +242,9 @@ def identification_mission(mission, calm=True):
                 ("identify", {}, None)]
     return dataclasses.replace(mission, name=f"identification ({mission.name})",
                                segments=segments, controller=ctrl,
-                               wind=None if calm else mission.wind, settle_s=0.0)
+                               wind=None if calm else mission.wind, settle_s=0.0,
+                               mass_scale=1.0, motor_thrust_curve=None,
+                               attitude_bandwidth_scale=1.0, input_model_scale=1.0)
 
 
 def windows_in(phases, position=(0.0, 0.0, -ALTITUDE)):
@@ -307,9 +312,9 @@ def with_identified(mission, kind=None, seed=None):
     if "input_lag" not in rec:
         raise RuntimeError(f"{mission.name}: {failure_text(rec)}: {summary_line(rec)}")
     m = copy.copy(mission)
+    lag = tuple(mission.input_model_scale * x for x in observer_lag(rec, mission.controller))
     m.controller = dataclasses.replace(
-        mission.controller, gains={**mission.controller.gains,
-                                   "input_lag": observer_lag(rec, mission.controller)})
+        mission.controller, gains={**mission.controller.gains, "input_lag": lag})
     m.identification = rec
     return m
 

@@ -3,7 +3,9 @@
 This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink flight of
 :mod:`mavadrc.flight` against ``python -m sim --lockstep``, with the wire taken out:
 
-* the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware);
+* the same :class:`sim.vehicle.SimVehicle` (same vehicle file, wind, seed and firmware), changed
+  as the mission's ``sim:`` section says (:func:`mavadrc.mission.vehicle_flown`) while what the
+  companion is told (the hover thrust, ``input_lag: auto``) comes from the file;
 * the same timeline: on the ground until armed, the thrust spooled up
   (:func:`mavadrc.flight.spool_thrust`), the mission clock started at
   :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side), or
@@ -31,6 +33,7 @@ The ``oracle`` controller exists only here: the PD law with the simulator's true
 acceleration fed forward, the floor any controller with the same feedback gains could reach.
 """
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -43,7 +46,8 @@ from sim.link_model import LINK_FROM, PeriodLink
 from sim.params import load_vehicle
 from sim.personality import personality
 from sim.sensors import TYPICAL_NOISE
-from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into
+from sim.vehicle import (SimVehicle, advance_wind_into, advance_wind_measured_into,
+                         vehicle_variant)
 from sim.wind import WIND_SCRATCH
 
 from .control import geometry as G
@@ -76,7 +80,9 @@ L_YAW = 31
 L_REF_YAW = 32
 L_REF_ACC = 33  # 3
 L_AGE = 36  # the sample's age when the controller got it (s), compensated or not
-NLOG = 37
+L_ROLL = 37  # the vehicle's roll and pitch (its estimate, as ATTITUDE reports it) at the period
+L_PITCH = 38
+NLOG = 39
 
 STATUS_OK = 0
 STATUS_BREACH = 1
@@ -244,6 +250,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             row[L_YAW] = syaw[d]
             row[L_REF_YAW] = refs[j, 9] + yaw_offset
             row[L_AGE] = (k - s) * Pc[0, K.P_H]
+            row[L_ROLL] = eul[0]  # of this period (_store above)
+            row[L_PITCH] = eul[1]
             for i in range(3):
                 row[L_REF_ACC + i] = refs[j, 6 + i]
             j += 1
@@ -377,8 +385,12 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                **dict(vehicle_options or {})}
     if mission.noise:  # the server's --noise; its latency is the lag below
         options.setdefault("sensors", {"noise": TYPICAL_NOISE})
-    v = SimVehicle(_vehicle_params(mission.vehicle or "crazyflie"), wind=wind, seed=seed,
-                   attitude_controller=mission.attitude_controller, **options)
+    told = _vehicle_params(mission.vehicle or "crazyflie")  # the file: what the companion knows
+    flown = vehicle_variant(told, mass_scale=mission.mass_scale,
+                            motor_thrust_curve=mission.motor_thrust_curve,
+                            attitude_bandwidth_scale=mission.attitude_bandwidth_scale)
+    v = SimVehicle(flown, wind=wind, seed=seed, attitude_controller=mission.attitude_controller,
+                   **options)
     h = 1.0 / spec.rate_hz
     dt = v.physics_dt
     per = int(round(h / dt))
@@ -390,6 +402,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "
                          f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
+    if oracle:  # the PD law with the oracle's own gains (a spec of another kind flies defaults)
+        spec = dataclasses.replace(spec, kind="pd")
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind)
     # on the ground, disarmed, then armed at idle; thrust spooled up to MISSION_START.  The
     # samples of the last ``lag`` periods before the arming are what the companion gets in the

@@ -55,9 +55,12 @@ def _plant(tau, h):
 
 class _Loop:
     """The sampled closed loop of channel 0 of ``ctrl`` on the plant, ``n`` samples of delay;
-    ``known``: None, or the samples of it the controller compensates (its delay line)."""
+    ``known``: None, or the samples of it the controller compensates (its delay line).
+    :meth:`step` takes a disturbance acceleration ``d`` added to the plant's (held over the
+    step); with ``feedforward`` the controller is also given -d as its reference acceleration
+    (the oracle's law: the true disturbance fed forward)."""
 
-    def __init__(self, ctrl, tau, n, known=None):
+    def __init__(self, ctrl, tau, n, known=None, feedforward=False):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
         self.alpha = float(ctrl._IN[0, IN_ALPHA])
@@ -69,11 +72,14 @@ class _Loop:
         # estimate and the inputs applied over the known delay too
         self.line = 0 if known is None else 3 + known + 1
         self.size = self.ns + 1 + 3 + n + self.line
+        self.feedforward = feedforward
+        h = self.h
+        self.Bd = np.array([0.5 * h * h, h, 0.0])  # a held disturbance acceleration
 
-    def _channel(self, s, line, y, ydot):
+    def _channel(self, s, line, y, ydot, racc=0.0):
         """One step of the channel, through its delay line if it has one; the command."""
         if self.known is None:
-            return K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, 0.0), s, line
+            return K.channel_update_nominal(s, self.p, y, ydot, 0.0, 0.0, racc), s, line
         # the line laid out afresh each step on its own clock: the last sample at 0, the
         # inputs of the last ``known + 1`` steps begun at (-known .. 0) h + age
         m, h = self.known + 1, self.h
@@ -87,12 +93,12 @@ class _Loop:
         row[K.DL_HEAD] = m - 1
         row[K.DL_TIMES:K.DL_TIMES + m] = age + h * np.arange(-self.known, 1)
         row[K.DL_INPUTS:K.DL_INPUTS + m] = line[3:]
-        u = K.channel_update_aged(row, self.p, y, ydot, 0.0, 0.0, 0.0, h, age)
+        u = K.channel_update_aged(row, self.p, y, ydot, 0.0, 0.0, racc, h, age)
         head = int(row[K.DL_HEAD])
         inputs = row[K.DL_INPUTS + (head - np.arange(m - 1, -1, -1)) % K.HIST]
         return u, row[:self.ns].copy(), np.concatenate([row[K.DL_Z1:K.DL_Z1 + 3], inputs])
 
-    def step(self, z):
+    def step(self, z, d=0.0):
         ns, n = self.ns, self.n
         s = z[:ns].copy()
         obs = z[ns]
@@ -100,7 +106,7 @@ class _Loop:
         buf = z[ns + 4:ns + 4 + n]
         line = z[ns + 4 + n:]
         y, ydot = x[0], x[1]
-        u, s, line = self._channel(s, line, y, ydot)
+        u, s, line = self._channel(s, line, y, ydot, -d if self.feedforward else 0.0)
         obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
         s[K.S_U] = obs
         if self.known is not None:
@@ -110,10 +116,12 @@ class _Loop:
             buf = np.concatenate([[u], buf[:-1]])
         else:
             applied = u
-        x = self.A @ x + self.B * applied
+        x = self.A @ x + self.B * applied + self.Bd * d
         return np.concatenate([s, [obs], x, buf, line])
 
-    def radius(self):
+    def linearised(self):
+        """(J, b, c) of the loop linearised at rest: z' = J z + b d, position = c z, over the
+        states that take part in it."""
         z0 = np.zeros(self.size)
         s = np.zeros(K.NS)
         K.channel_start(s, self.p, 0.0, 0.0)  # at rest, started (not waiting for a first sample)
@@ -123,12 +131,18 @@ class _Loop:
             d = np.zeros(self.size)
             d[j] = _EPS
             J[:, j] = (self.step(z0 + d) - self.step(z0 - d)) / (2.0 * _EPS)
+        b = (self.step(z0, _EPS) - self.step(z0, -_EPS)) / (2.0 * _EPS)
         # entries of the channel's state vector that this kind does not use carry over
         # unchanged and touch nothing: not part of the loop
         keep = [j for j in range(self.size)
                 if not (abs(J[j, j] - 1.0) < 1e-9 and np.count_nonzero(np.abs(J[j]) > 1e-9) == 1
                         and np.count_nonzero(np.abs(J[:, j]) > 1e-9) == 1)]
-        J = J[np.ix_(keep, keep)]
+        c = np.zeros(self.size)
+        c[self.ns + 1] = 1.0  # the plant's position
+        return J[np.ix_(keep, keep)], b[keep], c[keep]
+
+    def radius(self):
+        J, _, _ = self.linearised()
         return float(max(abs(np.linalg.eigvals(J))))
 
 
@@ -180,6 +194,24 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S):
             return stable * h
         stable = extra
     return math.inf
+
+
+def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False):
+    """|G_d(j w)|: the position error (m) per m/s^2 of a sinusoidal disturbance acceleration at
+    each angular frequency of ``omegas`` (rad/s), the loop linearised at rest on the plant (lag
+    ``tau``, default the controller's input model; ``delay`` s) and sampled at its step;
+    ``feedforward``: the disturbance also fed forward (the oracle).  NaN where the loop is
+    unstable (it has no steady response)."""
+    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))),
+                 feedforward=feedforward)
+    J, b, c = loop.linearised()
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
+    if max(abs(np.linalg.eigvals(J))) >= 1.0:
+        return np.full(omegas.shape, math.nan)
+    eye = np.eye(J.shape[0])
+    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * loop.h) * eye - J, b))
+                     for w in omegas])
 
 
 def margin_record(margin):

@@ -85,6 +85,14 @@ class Mission:
     noise: bool = False
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
     link: object = None  # sim.link_model.LinkModel between the bundled vehicle and the companion
+    #: the bundled vehicle against its file (``sim: {mass_scale, motor_thrust_curve,
+    #: attitude_bandwidth_scale}``, :func:`sim.vehicle.vehicle_variant`): what the companion is
+    #: told (hover thrust, ``input_lag: auto``) still comes from the file
+    #: the observers' input model times this once identified (a robustness study's model error)
+    input_model_scale: float = 1.0
+    mass_scale: float = 1.0
+    motor_thrust_curve: float = None
+    attitude_bandwidth_scale: float = 1.0
     #: the bundled vehicle's initial heading (deg); NaN (``heading_deg: random``): drawn from
     #: the run's seed (:func:`sim.vehicle.initial_heading`), the same on both paths
     heading_deg: float = 0.0
@@ -480,6 +488,42 @@ def _bundled_hover(vp, autopilot):
     return hover_command(vp, vp.max_thrust, ap.thrust_model_factor(default))
 
 
+def _read_variant(s, m):
+    """The ``sim:`` keys that make the bundled vehicle differ from its file (``s``: the section,
+    after ``attitude_controller``; ``m.vehicle`` read)."""
+    m.mass_scale = s.number("mass_scale", 1.0, gt=0.0, le=10.0)
+    m.motor_thrust_curve = s.number("motor_thrust_curve", None, ge=-1.0, le=1.0)
+    m.attitude_bandwidth_scale = s.number("attitude_bandwidth_scale", 1.0, gt=0.0, le=10.0)
+    varied = [k for k, v in (("mass_scale", m.mass_scale != 1.0),
+                             ("motor_thrust_curve", m.motor_thrust_curve is not None),
+                             ("attitude_bandwidth_scale", m.attitude_bandwidth_scale != 1.0))
+              if v]
+    if not varied:
+        return
+    if m.vehicle is None:
+        s.error(varied[0], "changes the bundled vehicle against its file: give the file "
+                           "(vehicle: NAME), whose figures the companion is told")
+    if m.attitude_bandwidth_scale != 1.0 and m.attitude_controller != "px4":
+        s.error("attitude_bandwidth_scale", "scales the PX4-like attitude loop "
+                                            "(attitude_controller: px4)")
+    from sim.vehicle import vehicle_variant
+    try:
+        vehicle_variant(m.vehicle, mass_scale=m.mass_scale,
+                        motor_thrust_curve=m.motor_thrust_curve,
+                        attitude_bandwidth_scale=m.attitude_bandwidth_scale)
+    except ConfigError as exc:
+        s.error(varied[0], str(exc))
+
+
+def vehicle_flown(m):
+    """The bundled vehicle a mission flies: its file, changed as its ``sim:`` section says
+    (:func:`sim.vehicle.vehicle_variant`)."""
+    from sim.vehicle import vehicle_variant
+    return vehicle_variant(m.vehicle or "crazyflie", mass_scale=m.mass_scale,
+                           motor_thrust_curve=m.motor_thrust_curve,
+                           attitude_bandwidth_scale=m.attitude_bandwidth_scale)
+
+
 def mission_from_section(top, source, text, default_name="mission", require_land=True,
                          controller=True):
     """A :class:`Mission` from a YAML section (a mission file, or an experiment's scenario).
@@ -552,6 +596,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
             from sim.link_model import link_from_section
             link = link_from_section(s.section("link"))
             m.link = None if link.perfect else link
+        _read_variant(s, m)
         if isinstance(s.raw("heading_deg", None), str):
             if s.string("heading_deg").strip().lower() != "random":
                 s.error("heading_deg", "must be degrees or 'random' (drawn from the seed)")
@@ -559,6 +604,10 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         else:
             m.heading_deg = s.number("heading_deg", 0.0, ge=-360.0, le=360.0)
         s.finish()
+    if m.vehicle is not None and m.motor_thrust_curve is not None:
+        # the motors' curve as if the file gave it: the autopilot reports its hover thrust
+        from sim.vehicle import vehicle_variant
+        vp = vehicle_variant(vp, motor_thrust_curve=m.motor_thrust_curve)
     if m.vehicle is not None and vp.motor_thrust_curve is not None:
         m.hover_thrust = _bundled_hover(vp, m.autopilot)
     m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()

@@ -1,6 +1,5 @@
 """The report of an experiment: Markdown tables, findings, goals and figures from its records."""
 
-import fnmatch
 import math
 from collections import OrderedDict
 from pathlib import Path
@@ -8,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .console import counted
-from .experiment import SATURATION_SHARE, metric
+from .experiment import SATURATION_SHARE, goal_covers, metric
 
 TABLE_METRICS = (
     ("RMS x", "after_settle.rms_error_xyz_m.0"),
@@ -16,6 +15,7 @@ TABLE_METRICS = (
     ("RMS z", "after_settle.rms_error_xyz_m.2"),
     ("RMS 3-D", "after_settle.rms_error_m"),
     ("max 3-D", "after_settle.max_error_m"),
+    ("roll/pitch osc. deg", "after_settle.attitude_oscillation_deg"),
     ("joining max", "joining.max_error_m"),
     ("effort", "effort_rms_accel"),
     ("thrust sat. s", "thrust_saturated_s"),
@@ -113,35 +113,95 @@ def scenario_table(exp, sc, groups):
     return "\n".join(lines)
 
 
+def _series(exp, name):
+    """The scenarios that are points of series ``name``, by value."""
+    return sorted((sc for sc in exp.scenarios if sc.point(name)),
+                  key=lambda sc: sc.point(name)["value"])
+
+
+def value(sc, b):
+    """Scenario ``sc``'s value along break ``b``'s series."""
+    return sc.point(b["series"])["value"]
+
+
+def unit(sc, b):
+    return sc.point(b["series"])["unit"]
+
+
+def margin(exp, b, c, groups):
+    """Where controller ``c`` holds along break ``b``'s series: (scenarios sorted by value,
+    index of the nominal, (lowest, highest) index that holds around it or None if the nominal
+    breaks, the first breaking (scenario, value of the metric, feasible) below it and above it
+    or None).  A value holds when every run is feasible and the metric is at most ``above``."""
+    series = _series(exp, b["series"])
+    values = [value(sc, b) for sc in series]
+    nominal = b.get("nominal")
+    k0 = 0 if nominal is None else min(range(len(values)), key=lambda k: abs(values[k] - nominal))
+
+    def judged(sc):
+        recs = groups.get((sc.name, c.name), [])
+        m, _ = stat(recs, b["metric"])
+        ok = feasible(recs) and math.isfinite(m) and m <= b["above"]
+        return ok, (sc, m, feasible(recs))
+
+    ok, first = judged(series[k0])
+    if not ok:
+        return series, k0, None, first, first
+    lo = hi = k0
+    below = above = None
+    for k in range(k0 - 1, -1, -1):
+        ok, hit = judged(series[k])
+        if not ok:
+            below = hit
+            break
+        lo = k
+    for k in range(k0 + 1, len(series)):
+        ok, hit = judged(series[k])
+        if not ok:
+            above = hit
+            break
+        hi = k
+    return series, k0, (lo, hi), below, above
+
+
+def _broke(b, hit):
+    sc, m, ok = hit
+    why = f"{m:.3f}" if ok and math.isfinite(m) else "infeasible"
+    return f"{value(sc, b):g} {unit(sc, b)} (`{b['metric']}` {why} > {b['above']:g})"
+
+
 def findings(exp, groups):
     """Sentences the report states, measured: where each controller breaks along each series,
     and how ADRC and LADRC compare."""
     out = []
     for b in exp.breaks:
-        series = [sc for sc in exp.scenarios if sc.series and sc.series["name"] == b["series"]]
-        if not series:
+        if not _series(exp, b["series"]):
             continue
-        series.sort(key=lambda sc: sc.series["value"])
-        unit = series[0].series["unit"]
         for c in exp.controllers:
-            broke = None
-            for sc in series:
-                recs = groups.get((sc.name, c.name), [])
-                m, _ = stat(recs, b["metric"])
-                if not feasible(recs) or not math.isfinite(m) or m > b["above"]:
-                    broke = (sc, m, feasible(recs))
-                    break
-            values = ", ".join(f"{sc.series['value']:g}" for sc in series)
-            if broke is None:
-                out.append(f"- **{c.name}**, {b['series']} ({values} {unit}): `{b['metric']}` "
+            series, k0, held, below, above = margin(exp, b, c, groups)
+            u = unit(series[0], b)
+            values = ", ".join(f"{value(sc, b):g}" for sc in series)
+            if held is None:
+                out.append(f"- **{c.name}**, {b['series']}: breaks at "
+                           f"{'the nominal ' if b.get('nominal') is not None else ''}"
+                           f"{_broke(b, below)}.")
+            elif below is None and above is None:
+                out.append(f"- **{c.name}**, {b['series']} ({values} {u}): `{b['metric']}` "
                            f"stays at or below {b['above']:g} at every value.")
+            elif b.get("nominal") is None:
+                out.append(f"- **{c.name}**, {b['series']}: breaks at {_broke(b, above)}.")
             else:
-                sc, m, ok = broke
-                why = f"{m:.3f}" if ok and math.isfinite(m) else "infeasible"
-                out.append(f"- **{c.name}**, {b['series']}: breaks at {sc.series['value']:g} "
-                           f"{unit} (`{b['metric']}` {why} > {b['above']:g}).")
+                lo, hi = (value(series[k], b) for k in held)
+                where = [f"{'below' if hit is below else 'above'}: {_broke(b, hit)}"
+                         for hit in (below, above) if hit is not None]
+                held = f"only at {lo:g} {u}" if lo == hi else f"from {lo:g} to {hi:g} {u}"
+                out.append(f"- **{c.name}**, {b['series']} ({values} {u}; nominal "
+                           f"{value(series[k0], b):g}): holds {held}; "
+                           f"breaks {' and '.join(where)}.")
     # ADRC vs LADRC over the scenarios both could fly: the median ratio and its extremes
-    kinds = {c.kind: c.name for c in exp.controllers}
+    kinds = {}
+    for c in exp.controllers:  # the first controller of each kind
+        kinds.setdefault(c.kind, c.name)
     if "adrc" in kinds and "ladrc" in kinds:
         a, l = kinds["adrc"], kinds["ladrc"]
         ratios = []
@@ -164,6 +224,32 @@ def findings(exp, groups):
     return out
 
 
+def margins_table(exp, groups):
+    """Markdown: per break series (rows) and controller (columns), the range of values around
+    the nominal over which the controller holds; empty without breaks."""
+    rows = []
+    for b in exp.breaks:
+        if not _series(exp, b["series"]):
+            continue
+        cells = []
+        for c in exp.controllers:
+            series, k0, held, below, above = margin(exp, b, c, groups)
+            if held is None:
+                cells.append("breaks at nominal" if b.get("nominal") is not None
+                             else f"breaks at {value(series[0], b):g}")
+                continue
+            lo, hi = (value(series[k], b) for k in held)
+            text = f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
+            cells.append(text + ("" if below or above else " (all)"))
+        nominal = f", nominal {value(series[k0], b):g}" if b.get("nominal") is not None else ""
+        rows.append(f"| {b['series']} ({unit(series[0], b)}{nominal}; `{b['metric']}` <= "
+                    f"{b['above']:g}) | " + " | ".join(cells) + " |")
+    if not rows:
+        return ""
+    head = "| series | " + " | ".join(c.name for c in exp.controllers) + " |"
+    return "\n".join([head, "|" + "---|" * (len(exp.controllers) + 1)] + rows)
+
+
 def check_goals(exp, groups):
     """[(text, met, detail)] for each goal and controller of the experiment.
 
@@ -172,7 +258,7 @@ def check_goals(exp, groups):
     runs of the same scenarios)."""
     out = []
     for g in exp.goals:
-        scs = [sc for sc in exp.scenarios if fnmatch.fnmatchcase(sc.name, g["scenario"])]
+        scs = [sc for sc in exp.scenarios if goal_covers(g, sc.name)]
         parts = [scs] if g.get("over") == "all" else [[sc] for sc in scs]
         bound = f"<= {g['at_most']:g}" if g["at_most"] is not None else f">= {g['at_least']:g}"
         for c in g["controllers"]:
@@ -193,8 +279,13 @@ def check_goals(exp, groups):
                 text = f"{what}: {scope}`{g['metric']}` {bound} on {g['scenario']!r}"
             detail = f"{what} = {m:.4g} over {len(part)} scenarios pooled" if len(parts) == 1 \
                 and len(scs) > 1 else f"worst: {m:.4g} ({part[0].name})"
-            if not ok and math.isfinite(m) and g["at_most"] is not None:
+            bad = [r for sc in part for r in groups.get((sc.name, c), [])
+                   if not r.get("feasible", False)]
+            if not ok and math.isfinite(m) and g["at_most"] is not None and m > g["at_most"]:
                 detail += f", missed by {m / g['at_most']:.2f}x"
+            if not ok and bad:
+                detail += (f", infeasible: {bad[0].get('infeasible_reason', 'infeasible')} "
+                           f"({bad[0]['scenario']})")
             out.append((text, ok, detail))
     return out
 
@@ -261,7 +352,10 @@ def write_report(folder, exp, records, meta, logs, workers=1):
               "flown; `--rerun-identical` flies them all).", ""]
     L += ["Errors are position errors in metres: RMS and max over the tracking window (after "
           "each scenario's settling time, which covers the takeoff and the joining transient), "
-          "mean ± std over seeds; `joining max` is the largest error before it. `effort` is the "
+          "mean ± std over seeds; `joining max` is the largest error before it. `roll/pitch osc. "
+          "deg` is the 99th percentile of the vehicle's roll or pitch about its 1 s running "
+          "mean over the same window (the worse axis; in process only): a limit cycle shows "
+          "there whatever the error says. `effort` is the "
           "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
           "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
           "command. A run is **infeasible** when the scenario demands more thrust than the "
@@ -278,6 +372,14 @@ def write_report(folder, exp, records, meta, logs, workers=1):
     fs = findings(exp, groups)
     if fs:
         L += ["## Findings", ""] + fs + [""]
+    table = margins_table(exp, groups)
+    if table:
+        L += ["## Margins", "", "Where each controller holds along each series: the values "
+              "around the nominal (the smallest, where none is named) at which every run is "
+              "feasible and the metric stays within its bound; `(all)`: every value swept.", "",
+              table, ""]
+        if "margins" in figs:
+            L += [f"![margins]({figs['margins']})", ""]
     if "overview" in figs:
         L += [f"![overview]({figs['overview']})", ""]
     current = None
@@ -332,6 +434,8 @@ def make_figures(folder, exp, groups, logs, workers=1):
     fig.savefig(fig_dir / "overview.png", dpi=110)
     plt.close(fig)
     out["overview"] = "figures/overview.png"
+    if margins_figure(fig_dir / "margins.png", exp, groups):
+        out["margins"] = "figures/margins.png"
     # every scenario that at least one controller could fly (an all-infeasible one is a table)
     chosen = [sc for sc in exp.scenarios
               if any(feasible(groups.get((sc.name, c.name), [])) for c in exp.controllers)]
@@ -353,6 +457,54 @@ def make_figures(folder, exp, groups, logs, workers=1):
         for job in jobs:
             _scenario_figure(job)
     return out
+
+
+def margins_figure(path, exp, groups):
+    """One panel per break series: the metric against the series' value, per controller, the
+    bound dashed and the nominal dotted; an infeasible run is a cross on the panel's top edge.
+    Returns whether there was anything to draw."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [b for b in exp.breaks if _series(exp, b["series"])]
+    if not panels:
+        return False
+    ncol = min(3, len(panels))
+    nrow = -(-len(panels) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.3 * nrow), squeeze=False)
+    for ax, b in zip(axes.flat, panels):
+        series = _series(exp, b["series"])
+        xs = np.array([value(sc, b) for sc in series])
+        curves = []
+        for c in exp.controllers:
+            ys = np.array([stat(groups.get((sc.name, c.name), []), b["metric"])[0]
+                           for sc in series])
+            bad = np.array([not feasible(groups.get((sc.name, c.name), [])) for sc in series])
+            curves.append((c.name, np.where(bad, np.nan, ys), bad))
+        shown = [y for _, ys, _ in curves for y in ys if np.isfinite(y)]
+        top = 1.5 * max(shown + [2.0 * b["above"]])  # infeasible runs: crosses up here
+        for name, ys, bad in curves:
+            line, = ax.plot(xs, ys, "o-", ms=3, lw=1, label=name)
+            if bad.any():
+                ax.plot(xs[bad], np.full(bad.sum(), top), "x", color=line.get_color(), ms=6)
+        ax.axhline(b["above"], color="k", ls="--", lw=0.8)
+        if b.get("nominal") is not None:
+            ax.axvline(b["nominal"], color="grey", ls=":", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_ylim(top=top * 1.3)
+        ax.set_xlabel(f"{b['series']} ({unit(series[0], b)})", fontsize=8)
+        ax.set_ylabel(b["metric"], fontsize=7)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=6)
+    fig.suptitle(f"{exp.name}: margins (dashed: the bound; x: infeasible)", fontsize=10)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.97))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
 
 
 def _scenario_figure(job):

@@ -27,7 +27,7 @@ from sim.yamlio import choose, did_you_mean
 
 from .compare import default_workers, process_pool
 from .console import counted
-from .experiment import experiment_from_text, load_experiment, run_inprocess
+from .experiment import experiment_from_text, goal_covers, load_experiment, run_inprocess
 
 INFEASIBLE_COST = 10.0
 TUNING_SEEDS = 1000  # the first seed a search uses
@@ -149,7 +149,7 @@ def judged_on_tuned(exp, controller, idx):
     for g in exp.goals:
         if controller not in g["controllers"] and g.get("ratio_to") != controller:
             continue
-        hit = sorted(n for n in tuned if fnmatch.fnmatchcase(n, g["scenario"]))
+        hit = sorted(n for n in tuned if goal_covers(g, n))
         if hit:
             out.append((g["text"] or g["metric"], hit))
     return out

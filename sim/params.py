@@ -160,6 +160,17 @@ class VehicleParams:
         A[3] = self.k_m * self.rotor_directions
         return A
 
+    def as_file(self) -> dict[str, Any]:
+        """The vehicle as a vehicle file's keys (plain values): :func:`load_vehicle` of its YAML
+        gives this vehicle back."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None:
+                continue
+            out[f.name] = [float(a) for a in v] if isinstance(v, np.ndarray) else v
+        return out
+
     def pack(self) -> np.ndarray:
         """The float64 parameter vector the physics kernels take (indices P_*)."""
         P = np.zeros(P_SIZE)

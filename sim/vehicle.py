@@ -156,6 +156,26 @@ def resolve_vehicle(vehicle):
     return load_vehicle(vehicle)
 
 
+def vehicle_variant(vehicle, *, mass_scale=1.0, motor_thrust_curve=None,
+                    attitude_bandwidth_scale=1.0):
+    """The vehicle with a few of its file's values changed, for robustness studies: the mass
+    times ``mass_scale`` (a payload at the centre of mass: inertia, motors and the autopilot's
+    gains as they were), the motors' real thrust curve ``motor_thrust_curve`` (None: the
+    file's), and the PX4-like attitude loop's closed-loop bandwidth (the file's
+    ``attitude_bandwidth``, or the firmware's default) times ``attitude_bandwidth_scale``.
+    Raises ConfigError when the result cannot fly (too heavy to lift itself)."""
+    vp = resolve_vehicle(vehicle)
+    changes = {}
+    if mass_scale != 1.0:
+        changes["mass"] = vp.mass * float(mass_scale)
+    if motor_thrust_curve is not None:
+        changes["motor_thrust_curve"] = float(motor_thrust_curve)
+    if attitude_bandwidth_scale != 1.0:
+        changes["attitude_bandwidth"] = (float(attitude_bandwidth_scale)
+                                         * A.default_bandwidths(vp, "px4"))
+    return dataclasses.replace(vp, **changes) if changes else vp
+
+
 def resolve_wind(wind, seed):
     """A Wind (reset with ``seed``) from None, a config name/path, a mapping or a Wind."""
     if wind is None:

@@ -66,7 +66,21 @@ def _build(node: yaml.Node, constructor: _Loader, source: str) -> Any:
     line = node.start_mark.line + 1
     if isinstance(node, yaml.MappingNode):
         out = YamlMap(line=line)
+        merged = YamlMap(line=line)  # ``<<: *anchor`` entries: the mapping's own keys win
         for key_node, value_node in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                sources = value_node.value if isinstance(value_node, yaml.SequenceNode) \
+                    else [value_node]
+                for src in sources:
+                    if not isinstance(src, yaml.MappingNode):
+                        raise ConfigError(f"{source}:{key_node.start_mark.line + 1}: <<: "
+                                          "merges mappings only")
+                    built = _build(src, constructor, source)
+                    for k, v in built.items():
+                        if k not in merged:
+                            merged[k] = v
+                            merged.lines[k] = built.lines[k]
+                continue
             key = constructor.construct_object(key_node, deep=True)
             key_line = key_node.start_mark.line + 1
             if not isinstance(key, (str, int, float, bool)) or key is None:
@@ -76,6 +90,10 @@ def _build(node: yaml.Node, constructor: _Loader, source: str) -> Any:
                                   f"(first on line {out.lines[key]})")
             out[key] = _build(value_node, constructor, source)
             out.lines[key] = key_line
+        for k, v in merged.items():
+            if k not in out:
+                out[k] = v
+                out.lines[k] = merged.lines[k]
         return out
     if isinstance(node, yaml.SequenceNode):
         out_list = YamlList(line=line)

@@ -1,0 +1,268 @@
+"""The robustness knobs of an experiment's scenarios (configs/experiments/robustness.yaml): each
+changes the physics it claims to, on the fast path; bad values are refused with file, line and
+field; and the report's goals and margins read them."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mavadrc import compare as C
+from mavadrc.experiment import experiment_from_text, load_experiment, run_inprocess
+from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess
+from mavadrc.mission import vehicle_flown
+from mavadrc.report import check_goals, findings, grouped, margins_table
+from sim.params import load_vehicle
+from sim.vehicle import SimVehicle, response_time_constants, vehicle_variant
+from sim.yamlio import ConfigError, load_yaml
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "configs" / "experiments"
+
+HOVER = """\
+name: knobs
+seeds: 1
+defaults:
+  vehicle: crazyflie
+  settle_s: 3
+  safety: {geofence: {north: [-10, 10], east: [-10, 10]}, altitude: {min: -0.5, max: 10}}
+  trajectory:
+    - takeoff: {altitude: 1.0, speed: 1.0}
+    - hover: {duration: 6}
+controllers:
+  - {name: PD, type: pd, wc: [2.5, 2.5, 3.0]}
+  - {name: LADRC, type: ladrc, wc: [4, 4, 4.25], wo: [23.9, 23.9, 25.4], input_lag: auto}
+scenarios:
+  - name: nominal
+    series: [{name: mass, value: 1, unit: x}, {name: rate, value: 100, unit: Hz}]
+  - name: heavy
+    series: {name: mass, value: 1.3, unit: x}
+    sim: {mass_scale: 1.3}
+  - name: light
+    series: {name: mass, value: 0.7, unit: x}
+    sim: {mass_scale: 0.7}
+  - name: curved
+    sim: {motor_thrust_curve: 1.0}
+  - name: rate 50 Hz
+    series: {name: rate, value: 50, unit: Hz}
+    sample_rate_hz: 50
+  - name: model x2
+    input_model_scale: 2
+goals:
+  - {scenario: [nominal, heavy], controllers: [PD], metric: after_settle.max_error_m,
+     at_most: 0.1}
+  - {scenario: [nominal, "rate *"], controllers: [LADRC],
+     metric: after_settle.attitude_oscillation_deg, at_most: 5}
+breaks:
+  - {series: mass, metric: after_settle.max_error_m, above: 0.1, nominal: 1}
+  - {series: rate, metric: after_settle.max_error_m, above: 0.1, nominal: 100}
+"""
+
+
+@pytest.fixture(scope="module")
+def knobs():
+    return experiment_from_text("knobs.yaml", HOVER)
+
+
+def _index(exp, name):
+    return [sc.name for sc in exp.scenarios].index(name)
+
+
+def _altitude_error(exp, name, j=0):
+    rec, log = run_inprocess(exp, _index(exp, name), j, 0, keep_log=True)
+    late = log[:, L_T] >= exp.scenarios[0].settle_s + 1.0
+    return float(np.mean(log[late, L_REF + 2] - log[late, L_POS + 2]))
+
+
+def test_a_heavier_vehicle_needs_that_much_more_hover_thrust_than_the_companion_is_told(knobs):
+    """mass x1.3: the thrust that hovers is 1.3x the file's, which the companion still flies on;
+    PD (no integral) sags by the acceleration it must ask for instead, 0.3 g / wc_z^2."""
+    told = load_vehicle("crazyflie")
+    heavy = vehicle_variant(told, mass_scale=1.3)
+    assert heavy.mass == pytest.approx(1.3 * told.mass)
+    assert np.array_equal(heavy.inertia, told.inertia)
+    assert SimVehicle(heavy).hover_thrust == pytest.approx(1.3 * SimVehicle(told).hover_thrust)
+    m = knobs.mission(_index(knobs, "heavy"), 0)
+    assert m.hover_thrust == pytest.approx(told.hover_thrust_norm)
+    assert fly_inprocess(m, seed=0).hover_thrust == pytest.approx(told.hover_thrust_norm)
+    assert abs(_altitude_error(knobs, "nominal")) < 0.005
+    sag = -_altitude_error(knobs, "heavy")  # below the reference
+    assert sag == pytest.approx(0.3 * 9.80665 / 3.0 ** 2, rel=0.05)
+
+
+def test_nonlinear_motors_are_told_the_hover_the_autopilot_reports(knobs):
+    """motor_thrust_curve 1 under PX4's linear assumption: the command that hovers moves (as the
+    vehicle's own hover thrust says) and the companion is told it, so PD does not sag."""
+    m = knobs.scenarios[_index(knobs, "curved")].mission
+    flown = SimVehicle(vehicle_flown(m))
+    assert flown.hover_thrust > 1.3 * load_vehicle("crazyflie").hover_thrust_norm
+    assert m.hover_thrust == pytest.approx(flown.hover_thrust)
+    assert abs(_altitude_error(knobs, "curved")) < 0.005
+
+
+def test_a_slower_attitude_loop_answers_slower():
+    """attitude_bandwidth_scale 0.5: the measured 63 % response time doubles horizontally, the
+    vertical one (the motors) stays."""
+    fast = response_time_constants("crazyflie")
+    slow = response_time_constants(vehicle_variant("crazyflie", attitude_bandwidth_scale=0.5))
+    assert 1.8 * fast[0] < slow[0] < 2.2 * fast[0]
+    assert slow[1] == pytest.approx(fast[1])
+
+
+def test_the_sample_rate_is_the_rate_the_controller_runs_at(knobs):
+    rec, log = run_inprocess(knobs, _index(knobs, "rate 50 Hz"), 1, 0, keep_log=True)
+    steps = np.diff(log[:, L_T])
+    assert np.allclose(steps, 0.02, atol=1e-6)
+    assert rec["delay_margin_s"] is not None
+    nominal, log100 = run_inprocess(knobs, _index(knobs, "nominal"), 1, 0, keep_log=True)
+    assert np.allclose(np.diff(log100[:, L_T]), 0.01, atol=1e-6)  # the spec's own 100 Hz
+
+
+def test_the_input_model_scale_multiplies_the_measured_model_and_leaves_pd_alone(knobs):
+    tau_xy, tau_z = response_time_constants("crazyflie")
+    i = _index(knobs, "model x2")
+    assert knobs.mission(i, 1).controller.gains["input_lag"] == \
+        pytest.approx((2 * tau_xy, 2 * tau_xy, 2 * tau_z))
+    assert knobs.mission(i, 0).controller is knobs.controllers[0].spec
+
+
+def test_goals_and_margins_read_the_knobs(knobs):
+    records, _, _ = C.run_matrix(knobs, workers=1, progress=False)
+    groups = grouped(knobs, records)
+    goals = {text.split(":")[0]: (ok, detail) for text, ok, detail in check_goals(knobs, groups)}
+    # PD sags 0.33 m on the heavy vehicle: the goal over [nominal, heavy] is missed there
+    ok, detail = goals["PD"]
+    assert not ok and "(heavy)" in detail and "missed by 3." in detail
+    ok, detail = goals["LADRC"]  # the oscillation measure exists on the fast path
+    assert ok and detail.startswith("worst: ")
+    osc = [r["after_settle"]["attitude_oscillation_deg"] for r in records]
+    assert all(math.isfinite(x) and 0.0 <= x < 5.0 for x in osc)
+    lines = "\n".join(findings(knobs, groups))
+    # PD sags (or rises) 0.33 m on a vehicle 30 % heavier (lighter) than it is told
+    assert "**PD**, mass (0.7, 1, 1.3 x; nominal 1): holds only at 1 x; breaks below: 0.7 x " \
+           "(`after_settle.max_error_m` 0.327 > 0.1) and above: 1.3 x" in lines
+    assert "**LADRC**, mass (0.7, 1, 1.3 x): `after_settle.max_error_m` stays at or below 0.1" \
+        in lines
+    table = margins_table(knobs, groups)
+    assert "| mass (x, nominal 1; `after_settle.max_error_m` <= 0.1) | 1 | 0.7-1.3 (all) |" \
+        in table
+    assert "| rate (Hz, nominal 100; `after_settle.max_error_m` <= 0.1) | 50-100 (all) |" in table
+
+
+@pytest.mark.parametrize("scenario,where", [
+    ("sim: {mass_scale: 0}", "sim.mass_scale"),
+    ("sim: {mass_scale: 3}", "sim.mass_scale"),  # too heavy to lift itself
+    ("sim: {motor_thrust_curve: 1.5}", "sim.motor_thrust_curve"),
+    ("sim: {attitude_bandwidth_scale: 0.5, attitude_controller: ladrc}",
+     "sim.attitude_bandwidth_scale"),
+    ("sample_rate_hz: 30", "sample_rate_hz"),
+    ("input_model_scale: -1", "input_model_scale"),
+    ("series: [{name: a, value: 1}, {name: a, value: 2}]", "series[1].name"),
+])
+def test_a_bad_knob_names_file_line_and_field(scenario, where, tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("name: x\ncontrollers:\n  - {type: pd}\nscenarios:\n  - name: s\n"
+                    "    vehicle: crazyflie\n    trajectory:\n      - takeoff: {altitude: 1}\n"
+                    f"    {scenario}\n")
+    with pytest.raises(ConfigError) as e:
+        load_experiment(path)
+    assert f"bad.yaml:9: scenarios[0].{where}" in str(e.value)
+
+
+def test_a_vehicle_change_needs_the_vehicle_file_and_a_break_its_series(tmp_path):
+    path = tmp_path / "bad.yaml"
+    base = ("name: x\ncontrollers:\n  - {type: pd}\nscenarios:\n  - name: s\n"
+            "    trajectory:\n      - takeoff: {altitude: 1}\n")
+    path.write_text(base + "    sim: {mass_scale: 1.2}\n")
+    with pytest.raises(ConfigError, match="sim.mass_scale: .*give the file"):
+        load_experiment(path)
+    path.write_text(base + "breaks:\n  - {series: nope, metric: max_error_m, above: 1}\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml:9: breaks\[0\].series: no scenario"):
+        load_experiment(path)
+
+
+def test_a_changed_vehicle_is_written_as_a_file_that_loads_back(tmp_path):
+    """What the bundled vehicle's server flies over MAVLink (mavadrc fly, compare --via
+    mavlink): the changed vehicle as a vehicle file."""
+    import yaml
+
+    m = experiment_from_text("knobs.yaml", HOVER).scenarios[1].mission
+    path = tmp_path / "vehicle.yaml"
+    path.write_text(yaml.safe_dump(vehicle_flown(m).as_file()))
+    assert np.array_equal(load_vehicle(path).pack(), vehicle_flown(m).pack())
+    slow = vehicle_variant("x500", attitude_bandwidth_scale=0.5, motor_thrust_curve=0.3)
+    path.write_text(yaml.safe_dump(slow.as_file()))
+    back = load_vehicle(path)
+    assert np.array_equal(back.attitude_bandwidth, slow.attitude_bandwidth)
+    assert back.motor_thrust_curve == 0.3
+
+
+def test_yaml_merge_keys_copy_an_anchored_mapping_under_its_own_keys(tmp_path):
+    data = load_yaml(tmp_path / "m.yaml", text="a: &base\n  x: 1\n  y: 2\nb:\n  <<: *base\n"
+                                                 "  y: 3\n")
+    assert data["b"] == {"x": 1, "y": 3}
+    assert data["b"].lines == {"y": 6, "x": 2}  # a merged key keeps its anchor's line
+
+
+def test_the_robustness_experiment_loads_with_every_knob():
+    exp = load_experiment(EXPERIMENTS / "robustness.yaml")
+    scs = exp.scenarios
+    assert {sc.sample_rate_hz for sc in scs} >= {25.0, 50.0, 100.0}
+    assert {sc.input_model_scale for sc in scs} >= {0.5, 2.0}
+    assert {sc.mission.mass_scale for sc in scs} >= {0.7, 1.3}
+    assert any(sc.mission.motor_thrust_curve for sc in scs)
+    assert any(sc.mission.attitude_bandwidth_scale < 1.0 for sc in scs)
+    assert {sc.mission.vehicle for sc in scs} == {"crazyflie", "x500"}
+    assert len(exp.runs()) <= 300  # the 5-minute budget on 2 cores
+
+
+def test_a_vehicle_that_never_leaves_the_ground_is_no_feasible_run(knobs):
+    """The safe defaults (wc 1) told the file's hover thrust on a vehicle 30 % heavier: the
+    observers learn nothing on the ground and 1 m of altitude error asks for 0.1 g more, so it
+    stays there, which is reported, not read as a quiet flight."""
+    import dataclasses
+
+    safe = dataclasses.replace(knobs.controllers[1].spec, gains={})
+    rec, _ = run_inprocess(knobs, _index(knobs, "heavy"), 1, 0, spec=safe)
+    assert not rec["feasible"] and rec["infeasible_reason"] == "the vehicle never left the ground"
+    rec, _ = run_inprocess(knobs, _index(knobs, "nominal"), 1, 0, spec=safe)
+    assert rec["feasible"]
+
+
+def test_the_oracle_flies_its_own_feedback_gains(knobs):
+    """The oracle is PD with the true disturbance fed forward, at the gains it is given (those
+    of the controller it is the floor for), not at PD's defaults (wc 2.5 / 3)."""
+    import dataclasses
+
+    from mavadrc.experiment import ControllerEntry
+
+    base = knobs.controllers[0].spec  # PD's defaults as gains
+    exp = dataclasses.replace(knobs, controllers=[
+        ControllerEntry("oracle", dataclasses.replace(base, kind="oracle")),
+        ControllerEntry("oracle fast", dataclasses.replace(base, kind="oracle",
+                                                           gains={"wc": (6.0, 6.0, 6.0)}))])
+    slow, _ = run_inprocess(exp, _index(exp, "heavy"), 0, 0)
+    fast, _ = run_inprocess(exp, _index(exp, "heavy"), 1, 0)
+    pd, _ = run_inprocess(knobs, _index(knobs, "heavy"), 0, 0)
+    assert slow["after_settle"]["max_error_m"] == pytest.approx(pd["after_settle"]["max_error_m"],
+                                                               rel=1e-3)
+    assert fast["after_settle"]["max_error_m"] < 0.5 * slow["after_settle"]["max_error_m"]
+
+
+def test_the_linearised_disturbance_response_is_the_closed_form():
+    """|G_d(jw)| of PD (kp = wc^2, kd = 2 wc) on a plant whose acceleration lags the command by
+    tau: 1 / |s^2 + (kd s + kp) / (tau s + 1)|; with the disturbance fed forward (the oracle)
+    the lag lets (1 - 1 / (tau s + 1)) of it through."""
+    from mavadrc.control import PositionController
+    from mavadrc.margin import disturbance_response
+
+    pd = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(4.0, 4.0, 4.0))
+    w = np.array([0.3, 1.0, 4.0])
+    s = 1j * w
+    lag = 1.0 / (0.13 * s + 1.0)
+    loop = s ** 2 + (8.0 * s + 16.0) * lag
+    assert disturbance_response(pd, w, tau=0.13) == pytest.approx(abs(1.0 / loop), rel=0.02)
+    assert disturbance_response(pd, w, tau=0.13, feedforward=True) == \
+        pytest.approx(abs((1.0 - lag) / loop), rel=0.02)
+    fast = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(40.0, 40.0, 40.0))
+    assert np.all(np.isnan(disturbance_response(fast, w, tau=0.13)))  # unstable: no response
