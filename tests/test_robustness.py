@@ -119,10 +119,13 @@ def test_the_sample_rate_is_the_rate_the_controller_runs_at(knobs):
 
 
 def test_the_input_model_scale_multiplies_the_measured_model_and_leaves_pd_alone(knobs):
-    tau_xy, tau_z = response_time_constants("crazyflie")
+    """input_lag: auto is identified on the vehicle (mavadrc.identify), then scaled."""
+    from mavadrc.identify import with_identified
     i = _index(knobs, "model x2")
-    assert knobs.mission(i, 1).controller.gains["input_lag"] == \
-        pytest.approx((2 * tau_xy, 2 * tau_xy, 2 * tau_z))
+    nominal = with_identified(knobs.mission(_index(knobs, "nominal"), 1), seed=0)
+    scaled = with_identified(knobs.mission(i, 1), seed=0)
+    assert scaled.controller.gains["input_lag"] == \
+        pytest.approx(tuple(2 * t for t in nominal.controller.gains["input_lag"]))
     assert knobs.mission(i, 0).controller is knobs.controllers[0].spec
 
 
