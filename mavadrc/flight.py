@@ -424,14 +424,20 @@ class Flight(Preflight, GroundPhases, Failsafes):
         return self.kind, self.gains
 
     def _make_controller(self, hover):
-        kind, gains = self._controller_flown()
+        ctrl, self.delay_margin = self._build(hover, *self._controller_flown())
+        return ctrl
+
+    def _build(self, hover, kind, gains):
+        """The controller of ``kind`` with ``gains`` at the rate flown, its delay margin
+        computed and every kernel of its step run once (compiled now, not mid-flight); at rest,
+        waiting for its first sample."""
         ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=kind,
                                rate_hz=self.rate, gains=gains)
-        self.delay_margin = delay_margin(ctrl)
+        margin = delay_margin(ctrl)
         ctrl.reset(np.zeros(3))
         ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
         ctrl.reset()
-        return ctrl
+        return ctrl, margin
 
     def _in_doublets(self, time_boot_ms, after=1.0):
         """Whether vehicle time ``time_boot_ms`` falls in the identify segment (or ``after`` s
@@ -481,11 +487,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
                               identified=observer_lag(rec, self.m.controller))
-        ctrl = make_controller(self.m.controller, hover_thrust=self.hover, kind=self.kind,
-                               rate_hz=self.rate, gains=gains)
-        margin = delay_margin(ctrl)
-        ctrl.reset(np.zeros(3))
-        ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
+        ctrl, margin = self._build(self.hover, self.kind, gains)
         return rec, ctrl, gains, margin
 
     def _identified(self, s, rec, ctrl, gains, margin):
