@@ -48,6 +48,27 @@ def _plot(args):
     return 0
 
 
+def flight_options(p):
+    """The options of a flight (``fly``, ``identify``): records, the bundled vehicle's, the
+    wall clock, which autopilot, signing, quiet."""
+    p.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="bundled vehicle only: run as fast as the machine allows, deterministically")
+    p.add_argument("--seed", type=int, default=None, help="bundled vehicle's wind/noise seed")
+    p.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
+    p.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="wall-clock seconds for the whole flight, every phase included: past "
+                        "them the vehicle is landed, and the landing itself is bounded")
+    p.add_argument("--sysid", type=int, default=None,
+                   help="fly the autopilot with this system id (default: the first heard)")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing: the 32-byte secret as 64 hex characters; "
+                        "everything sent is signed and everything received must be (the bundled "
+                        "vehicle is started with the same key)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="mavadrc",
@@ -79,26 +100,11 @@ def build_parser():
     f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid"), default=None,
                    type=str.lower, help="position controller, in either case: ladrc or LADRC "
                                         "(default: the mission's)")
-    f.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
-    f.add_argument("--lockstep", action="store_true",
-                   help="bundled vehicle only: run as fast as the machine allows, deterministically")
-    f.add_argument("--seed", type=int, default=None, help="bundled vehicle's wind/noise seed")
-    f.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
-    f.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
-    f.add_argument("--timeout", type=float, default=None,
-                   help="wall-clock seconds for the whole flight, every phase included: past "
-                        "them the vehicle is landed, and the landing itself is bounded")
     f.add_argument("--takeover", action="store_true",
                    help="fly a vehicle that is already armed, in the air or in OFFBOARD/GUIDED "
                         "(another controller's), from where it is; without it such a vehicle is "
                         "refused and nothing is sent that changes its mode, arming or thrust")
-    f.add_argument("--sysid", type=int, default=None,
-                   help="fly the autopilot with this system id (default: the first heard)")
-    f.add_argument("--signing-key", default=None, metavar="FILE",
-                   help="MAVLink 2 signing: the 32-byte secret as 64 hex characters; "
-                        "everything sent is signed and everything received must be (the bundled "
-                        "vehicle is started with the same key)")
-    f.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
+    flight_options(f)
     f.set_defaults(func=_fly)
     i = command("identify", help="measure a vehicle's input model (how late it produces a "
                                  "commanded acceleration) in a short flight",
@@ -113,19 +119,7 @@ def build_parser():
                    help="the YAML to write (default: input_model.yaml in the record folder)")
     i.add_argument("--altitude", type=float, default=1.0,
                    help="hover altitude for the doublets (m, default 1)")
-    i.add_argument("--out", default=None, help="folder for the flight records (default: runs/)")
-    i.add_argument("--lockstep", action="store_true",
-                   help="bundled vehicle only: run as fast as the machine allows")
-    i.add_argument("--seed", type=int, default=None, help="bundled vehicle's wind/noise seed")
-    i.add_argument("--wind", default=None, help="bundled vehicle's wind (overrides the mission)")
-    i.add_argument("--no-figures", action="store_true", help="do not draw the PNG figures")
-    i.add_argument("--timeout", type=float, default=None,
-                   help="wall-clock seconds for the whole flight")
-    i.add_argument("--sysid", type=int, default=None,
-                   help="the autopilot's system id (default: the first heard)")
-    i.add_argument("--signing-key", default=None, metavar="FILE",
-                   help="MAVLink 2 signing secret file (as for fly)")
-    i.add_argument("-q", "--quiet", action="store_true", help="no live progress line")
+    flight_options(i)
     i.set_defaults(func=_identify)
     c = command("compare", help="run an experiment (scenarios x controllers x seeds) and "
                                        "write its report")
