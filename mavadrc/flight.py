@@ -51,7 +51,7 @@ from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE
-from .identify import (MAX_DELAY_S, failure_text, fit, median_age, needs_identification,
+from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
                        observer_lag, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
@@ -480,9 +480,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def _identify_fit(self, d):
         """The fit of the identify segment's samples ``d``, and, if it holds, the mission's
         controller made with it: (record, controller or None, gains, delay margin)."""
-        rec = fit(d[:, 0], d[:, 1:4], d[:, 4:7], self._id_windows)
-        rec["sample_age_s"] = median_age(d[:, 0], d[:, 7], self._id_windows)
-        rec["flown"] = f"in flight, on system {self.link.target_system} ({self.link.autopilot})"
+        rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], self._id_windows,
+                         f"in flight, on system {self.link.target_system} "
+                         f"({self.link.autopilot})")
         if failure_text(rec) is not None:
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,

@@ -86,6 +86,7 @@ class _AxisFit:
         self.i0 = int(np.searchsorted(self.grid, t0))
         self.at = np.interp(self.ts, self.grid, np.arange(self.grid.size)).round().astype(int)
         self.rel = self.ts - t0
+        self._held_d, self._held = None, None
         # a disturbance that drifts over the window (gusts slower than the doublets): its
         # integral, a polynomial in time (the first column is the initial velocity)
         x = self.rel / max(self.rel[-1], 1e-9)
@@ -96,7 +97,9 @@ class _AxisFit:
 
     def solve(self, tau, d):
         """(sse, k, v0, b, c) of the velocity fit for lag ``tau`` and dead time ``d``."""
-        y = _shifted_hold(self.t, self.u, self.grid, d)
+        if d != self._held_d:  # the search runs every lag at one dead time before the next
+            self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
+        y = self._held
         alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
         for _ in range(ORDER):
             y, _ = signal.lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
@@ -270,11 +273,20 @@ def identify_inprocess(mission, seed=None):
         run = fly_inprocess(m, seed=seed)
         L = run.log
         windows = windows_in(run.phases)
-        rec = fit(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3], windows)
-        rec["sample_age_s"] = median_age(L[:, L_T], L[:, L_AGE], windows)
-        rec["flown"] = "in process, on the bundled vehicle"
+        rec = fit_flight(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3], L[:, L_AGE],
+                         windows, "in process, on the bundled vehicle")
         _CACHE[key] = rec
     return _CACHE[key]
+
+
+def fit_flight(t, u, v, age, windows, flown):
+    """The identification record of a flight's samples: :func:`fit` of the commands ``u`` and
+    velocities ``v`` at times ``t``, the samples' median age (``age``, s; NaN: unknown) and where
+    it was ``flown``."""
+    rec = fit(t, u, v, windows)
+    rec["sample_age_s"] = median_age(t, age, windows)
+    rec["flown"] = flown
+    return rec
 
 
 def median_age(t, age, windows):
