@@ -304,6 +304,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         # made, the safe default LADRC flies
         self.identification = None
         self._id_windows = None
+        self._id_span = None  # (first window's start, last window's end), mission time
         self._id_data = []
         self._id_job = None  # the fit, running in a thread (real time)
         self.summary = None
@@ -445,8 +446,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._id_windows is None:
             return False
         t = time_boot_ms / 1000.0 - self._mission_t0
-        return (min(w[1] for w in self._id_windows) <= t
-                <= max(w[2] for w in self._id_windows) + after)
+        return self._id_span[0] <= t <= self._id_span[1] + after
 
     def _identify_step(self, s, t):
         """Keep the samples of the identify segment; at its end fit the input model and fly
@@ -461,8 +461,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return self._identified(s, *job.result())
         if self._id_windows is None or self.identification is not None:
             return
-        start = min(w[1] for w in self._id_windows) - MAX_DELAY_S - 0.1
-        end = max(w[2] for w in self._id_windows)
+        start, end = self._id_span
+        start -= MAX_DELAY_S + 0.1  # the commands the first window's dead time reaches back to
         if t >= start:
             self._id_data.append((t, *self.ctrl.accel_applied, *s.vel,
                                   math.nan if s.age is None else s.age))

@@ -170,6 +170,7 @@ class GroundPhases:
         self._grid = None
         if self._identifying():
             self._id_windows = windows_in(self.phases)
+            self._id_span = (self._id_windows[0][1], self._id_windows[-1][2])
         self._mission_t0 = s.t
         self.mission_start = s.t
         self._lifted = self.takeover_in_air
