@@ -180,3 +180,24 @@ def wait_until(pred, timeout, step=0.02):
 
 
 NAN = math.nan
+
+
+def both_paths(exp, i, j, seed, tmp_path):
+    """Run (scenario i, controller j, seed) of ``exp`` on the fast path and over MAVLink against
+    the bundled vehicle in lockstep, checking that both flew the same steps at the same times;
+    returns (fast record, its log, MAVLink record, its controller.csv table, its positions)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from mavadrc.experiment import run_inprocess, run_mavlink
+    from mavadrc.inprocess import L_T
+    from mavadrc.record import read_table
+
+    rec_fast, log = run_inprocess(exp, i, j, seed, keep_log=True)
+    rec_wire, _ = run_mavlink(exp, i, j, seed, tmp_path)
+    tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
+    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
+    assert len(pos) == len(log)
+    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
+    return rec_fast, log, rec_wire, tab, pos

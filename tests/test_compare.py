@@ -13,9 +13,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from mavadrc import compare as C  # noqa: E402
 from mavadrc.experiment import (experiment_from_text, load_experiment, run_inprocess,  # noqa: E402
                                 run_mavlink)
-from mavadrc.inprocess import L_DIST, L_POS, L_T, L_YAW  # noqa: E402
-from mavadrc.record import read_table  # noqa: E402
+from mavadrc.inprocess import L_DIST, L_POS, L_YAW  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
+from sitl_helpers import both_paths  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 TINY = HERE / "data" / "tiny_experiment.yaml"
@@ -39,12 +39,7 @@ def tiny_serial(tiny):
 def test_fast_path_matches_the_mavlink_lockstep_flight_within_a_millimetre(tiny, tmp_path):
     """Same seed, same vehicle, same wind: the in-process run and the run flown over MAVLink
     against the bundled vehicle in lockstep are the same flight."""
-    rec_fast, log = run_inprocess(tiny, 0, 1, 1, keep_log=True)
-    rec_wire, _ = run_mavlink(tiny, 0, 1, 1, tmp_path)
-    tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
-    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
-    assert len(pos) == len(log)
-    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
+    rec_fast, log, rec_wire, tab, pos = both_paths(tiny, 0, 1, 1, tmp_path)
     diff = pos - log[:, L_POS:L_POS + 3]
     rms = float(np.sqrt(np.mean(np.sum(diff ** 2, axis=1))))
     assert rms < 1e-3, rms

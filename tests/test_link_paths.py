@@ -12,13 +12,13 @@ import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from mavadrc.experiment import experiment_from_text, run_inprocess, run_mavlink  # noqa: E402
+from mavadrc.experiment import experiment_from_text, run_inprocess  # noqa: E402
 from mavadrc.inprocess import L_POS, L_REF, L_T, STATUS_LINK, fly_inprocess  # noqa: E402
 from mavadrc.mission import load_mission  # noqa: E402
-from mavadrc.record import read_table  # noqa: E402
 from sim.link_model import LINK_FROM  # noqa: E402
 from sim.vehicle import SimVehicle  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
+from sitl_helpers import both_paths  # noqa: E402
 
 EXPERIMENT = """
 name: link
@@ -62,16 +62,11 @@ def test_the_fast_path_and_the_lockstep_wire_meet_the_same_link(exp, tmp_path):
     the in-process run and the lockstep MAVLink flight get the same samples at the same
     periods and fly the same flight (the link's decisions come from the seed, not from the
     path)."""
-    rec_fast, log = run_inprocess(exp, 1, 0, 0, keep_log=True)
-    rec_wire, _ = run_mavlink(exp, 1, 0, 0, tmp_path)
-    tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
+    rec_fast, log, rec_wire, tab, pos = both_paths(exp, 1, 0, 0, tmp_path)
     # the flight's record says which link it flew through
     summary = json.loads((Path(rec_wire["record_folder"]) / "summary.json").read_text())
     assert summary["config"]["link"] == exp.scenarios[1].mission.link.as_dict()
     assert summary["config"]["sensor_latency_s"] == 0.02
-    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
-    assert len(pos) == len(log)
-    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
     assert _rms(pos - log[:, L_POS:L_POS + 3]) < 1e-3
     assert abs(rec_fast["rms_error_m"] - rec_wire["rms_error_m"]) < 1e-3
     # the link really acted: samples went missing and the intervals are not the period's
@@ -95,13 +90,8 @@ def test_sensor_noise_is_the_same_flight_on_the_fast_path_and_the_lockstep_wire(
     companion gets the same noisy samples, and the two flights agree as without noise."""
     noisy = experiment_from_text("noisy.yaml", NOISY)
     assert all(sc.mission.noise for sc in noisy.scenarios)
-    rec_fast, log = run_inprocess(noisy, i, 0, 2, keep_log=True)
-    rec_wire, _ = run_mavlink(noisy, i, 0, 2, tmp_path)
-    tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
-    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
+    rec_fast, log, rec_wire, tab, pos = both_paths(noisy, i, 0, 2, tmp_path)
     ref = np.column_stack([tab["ref_x"], tab["ref_y"], tab["ref_z"]])
-    assert len(pos) == len(log)
-    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
     assert np.max(np.abs(ref - log[:, L_REF:L_REF + 3])) < 1e-6  # the same (noisy) origin
     assert _rms(pos - log[:, L_POS:L_POS + 3]) < 1e-3
     # to the CSV's digits (~5e-9 m): the same draws in the same order, the spool-up levelled

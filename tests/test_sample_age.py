@@ -31,14 +31,13 @@ os.environ.setdefault("MAVLINK20", "1")
 from mavadrc.control import PositionController  # noqa: E402
 from mavadrc.control import kernels as K  # noqa: E402
 from mavadrc.control.channels import han_params, ladrc_params  # noqa: E402
-from mavadrc.experiment import (experiment_from_text, load_experiment, run_inprocess,  # noqa: E402
-                                run_mavlink)
+from mavadrc.experiment import experiment_from_text, load_experiment, run_inprocess  # noqa: E402
 from mavadrc.flight import make_controller  # noqa: E402
-from mavadrc.inprocess import L_POS, L_T  # noqa: E402
+from mavadrc.inprocess import L_POS  # noqa: E402
 from mavadrc.margin import delay_margin  # noqa: E402
 from mavadrc.mission import ControllerSpec  # noqa: E402
-from mavadrc.record import read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
+from sitl_helpers import both_paths  # noqa: E402
 
 ROBUSTNESS = Path(__file__).resolve().parents[1] / "configs" / "experiments" / "robustness.yaml"
 
@@ -242,12 +241,7 @@ def test_the_lockstep_flight_measures_the_ages_the_fast_path_knows(tmp_path):
     (its ATTITUDE of the period before) and flies the reference for now: the same flight as
     the fast path, whose ages come from the periods the samples were taken and delivered."""
     exp = experiment_from_text("age.yaml", LOCKSTEP)
-    _, log = run_inprocess(exp, 0, 0, 0, keep_log=True)
-    rec, _ = run_mavlink(exp, 0, 0, 0, tmp_path)
-    tab = read_table(Path(rec["record_folder"]) / "controller.csv")
-    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
-    assert len(pos) == len(log)
-    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
+    _, log, _, tab, pos = both_paths(exp, 0, 0, 0, tmp_path)
     assert np.max(np.abs(pos - log[:, L_POS:L_POS + 3])) < 1e-6
     ages = np.asarray(tab["sample_age"], dtype=float)
     ages = ages[np.isfinite(ages) & (np.asarray(tab["t"]) > 0.5)]

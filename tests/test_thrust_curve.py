@@ -24,17 +24,16 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 
-from mavadrc.experiment import experiment_from_text, run_inprocess, run_mavlink  # noqa: E402
-from mavadrc.inprocess import L_POS, L_T, L_YAW  # noqa: E402
+from mavadrc.experiment import experiment_from_text  # noqa: E402
+from mavadrc.inprocess import L_POS, L_YAW  # noqa: E402
 from mavadrc.mission import load_mission  # noqa: E402
-from mavadrc.record import read_table  # noqa: E402
 from sim import cli  # noqa: E402
 from sim import physics as phys  # noqa: E402
 from sim.firmware.mixer import thrust_curve, thrust_curve_inverse  # noqa: E402
 from sim.params import load_vehicle  # noqa: E402
 from sim.vehicle import SimVehicle, child_seeds, initial_heading  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
-from sitl_helpers import Client, Lockstep, start_vehicle  # noqa: E402
+from sitl_helpers import Client, Lockstep, both_paths, start_vehicle  # noqa: E402
 
 X500 = load_vehicle("x500")
 GUIDED_NOGPS = 20
@@ -339,12 +338,7 @@ def test_the_fast_path_and_the_wire_fly_a_curved_vehicle_from_the_same_random_he
         vehicle=vehicle_file(tmp_path, 0.65), autopilot="px4"))
     assert exp.scenarios[0].random
     seed = 3
-    rec_fast, log = run_inprocess(exp, 0, 0, seed, keep_log=True)
-    rec_wire, _ = run_mavlink(exp, 0, 0, seed, tmp_path)
-    tab = read_table(Path(rec_wire["record_folder"]) / "controller.csv")
-    pos = np.column_stack([tab["pos_x"], tab["pos_y"], tab["pos_z"]])
-    assert len(pos) == len(log)
-    assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
+    rec_fast, log, rec_wire, tab, pos = both_paths(exp, 0, 0, seed, tmp_path)
     rms = float(np.sqrt(np.mean(np.sum((pos - log[:, L_POS:L_POS + 3]) ** 2, axis=1))))
     assert rms < 1e-3, rms
     assert np.max(np.abs(tab["yaw"] - log[:, L_YAW])) < 1e-6
