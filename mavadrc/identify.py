@@ -323,10 +323,15 @@ def with_identified(mission, kind=None, seed=None):
     rec = identify_inprocess(mission, seed)
     if "input_lag" not in rec:
         raise RuntimeError(f"{mission.name}: {failure_text(rec)}: {summary_line(rec)}")
+    from .flight import resolve_gains
+    spec = mission.controller
+    kind = kind or spec.kind
+    # the gains the flight resolves once it has identified (the defaults slowed to keep their
+    # margin, where the spec gives none), then the model scaled (a robustness study's error)
+    gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec))
+    gains["input_lag"] = tuple(mission.input_model_scale * x for x in gains["input_lag"])
     m = copy.copy(mission)
-    lag = tuple(mission.input_model_scale * x for x in observer_lag(rec, mission.controller))
-    m.controller = dataclasses.replace(
-        mission.controller, gains={**mission.controller.gains, "input_lag": lag})
+    m.controller = dataclasses.replace(spec, kind=kind, gains=gains)
     m.identification = rec
     return m
 

@@ -204,3 +204,20 @@ def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
         MARGIN_SHARE * 0.25
     given = gains((0.25, 0.25, 0.075), wc=[2.0, 2.0, 2.5], wo=[10.0, 10.0, 12.5])[1]
     assert given["wc"] == [2.0, 2.0, 2.5] or tuple(given["wc"]) == (2.0, 2.0, 2.5)
+
+
+def test_the_fast_path_flies_the_gains_the_flight_resolves_after_identifying():
+    """input_lag: auto without wc/wo: the fast path (and so compare --via mavlink) flies the
+    defaults slowed to keep their margin, as the flight does once it has identified."""
+    from mavadrc.flight import resolve_gains
+    from mavadrc.identify import observer_lag, with_identified
+    m = _mission("configs/missions/hover.yaml", 100)
+    spec = dataclasses.replace(m.controller, gains={"input_lag": "auto"})
+    m = dataclasses.replace(m, controller=spec)
+    I._CACHE.clear()
+    flown = with_identified(m, seed=0)
+    expect = resolve_gains(spec, identified=observer_lag(flown.identification, spec))
+    got = flown.controller.gains
+    assert got["wc"] == pytest.approx(expect["wc"]) and got["wo"] == pytest.approx(expect["wo"])
+    assert got["wc"][0] < 2.5  # slowed (the told defaults are 2.5)
+    assert resolve_gains(flown.controller)["wc"] == pytest.approx(expect["wc"])  # as given
