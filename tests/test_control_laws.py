@@ -420,7 +420,8 @@ def test_erratum_leso_z2_integrating_itself_fails():
 
 
 def han_with_law(law):
-    """TD + NLESO of the project with an NLSEF written here."""
+    """TD + NLESO of the project with an NLSEF written here (the TD's acceleration fed forward,
+    as the project's NLSEF does)."""
     td = TrackingDifferentiator(h=H, r0=20.0)
     obs = HanESO(h=H, b0=1.0)
     st = {"u": 0.0, "init": False}
@@ -431,7 +432,7 @@ def han_with_law(law):
             st["init"] = True
         z1, z2, z3 = obs.update(y, st["u"])
         v1, v2 = td.update(1.0)
-        st["u"] = law(v1 - z1, v2 - z2, z3)
+        st["u"] = law(v1 - z1, v2 - z2, z3) + td.acceleration
         return st["u"]
 
     return control

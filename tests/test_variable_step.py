@@ -118,6 +118,8 @@ def _old_channel_update(s, p, y, ydot, r, rdot, rddot):
     elif kind == K.KIND_HAN:
         _old_nleso_step(s, p, y)
         if p[K.P_TD] != 0.0:
+            # the TD's own acceleration is fed forward (issue 13, item 5)
+            rddot = fhan(s[K.S_V1] - r, s[K.S_V2], p[K.P_R0], p[K.P_H0])
             _old_td_step(s, p, r)
         else:
             s[K.S_V1], s[K.S_V2] = r, rdot

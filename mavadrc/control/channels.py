@@ -245,12 +245,18 @@ class TrackingDifferentiator:
         hh = self._h if h is None else float(h)
         if not K.td_update(self._s, self._p, v, hh):
             raise bad_input(hh, v=v)
-        return self._s[K.S_V1], self._s[K.S_V2]
+        return K.td_output(self._s)
 
     @property
     def v(self):
         """(v1, v2): the tracked signal and its derivative."""
-        return self._s[K.S_V1], self._s[K.S_V2]
+        return K.td_output(self._s)
+
+    @property
+    def acceleration(self):
+        """fh of the last step: the acceleration the TD gave v2 (the classical ADRC feeds it
+        forward)."""
+        return self._s[K.S_FH]
 
 
 def _estimates(self):
@@ -409,11 +415,15 @@ class LinearADRC(_ObservedChannel):
 class HanADRC(_ObservedChannel):
     """Classical ADRC on one channel: TD + Han's NLESO + NLSEF::
 
-        (v1, v2) = TD(r)                      (or (r, rdot) with td=False)
+        (v1, v2, fh) = TD(r)                  (or (r, rdot, rddot) with td=False)
         e1 = v1 - z1 ;  e2 = v2 - z2
-        u0 = -fhan(e1, c*e2, r, h1) + rddot   (law="fhan")
-           = k1 fal(e1, a1, d) + k2 fal(e2, a2, d) + rddot   (law="fal", a1 < 1 < a2)
+        u0 = -fhan(e1, c*e2, r, h1) + fh      (law="fhan")
+           = k1 fal(e1, a1, d) + k2 fal(e2, a2, d) + fh      (law="fal", a1 < 1 < a2)
         u  = (u0 - z3) / b0
+
+    With the TD the acceleration fed forward is the TD's own (fh, the acceleration it gives v2),
+    so the feed-forward belongs to the profile (v1, v2) being tracked; the reference's ``rddot``
+    is then not read.
 
     Corrected against the thesis (eqs. 42-47 print ``+ z3`` and ``c*e1``).  ``h1 = 10h`` and
     ``c = 0.5`` by default: ``h1 = 5h, c = 1`` limit-cycles.  The TD starts at the first
@@ -431,8 +441,9 @@ class HanADRC(_ObservedChannel):
 
     @property
     def v(self):
-        """(v1, v2): the TD's tracked reference and its derivative."""
-        return self._s[K.S_V1], self._s[K.S_V2]
+        """(v1, v2): the TD's tracked reference and its derivative (with td=False: the reference
+        and its rate)."""
+        return K.td_output(self._s)
 
 
 class PD(_Channel):

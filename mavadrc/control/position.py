@@ -146,6 +146,16 @@ def check_latency(latency, kind):
     return latency
 
 
+def authority(mapping):
+    """Per axis (x, y, z), the acceleration (m/s^2) the vehicle can give either way: horizontally
+    what the tilt limit allows at hover, g tan(tilt_max); vertically the smaller of the climb
+    and the descent the thrust limits leave."""
+    g, tpa = mapping[G.M_G], mapping[G.M_TPA]
+    horizontal = g * math.tan(mapping[G.M_TILT])
+    vertical = min(mapping[G.M_THR_MAX] / tpa - g, g - mapping[G.M_THR_MIN] / tpa)
+    return (horizontal, horizontal, vertical)
+
+
 def axis_params(kind, i, h, gains):
     """Kernel parameters of position axis ``i`` from per-axis gain keywords."""
     g = {k: _axis(v, i, k) for k, v in gains.items()}
@@ -201,12 +211,16 @@ class PositionController:
                     raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
-        self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
-        self._h = float(self._P[0, K.P_H])
-        self._S = np.zeros((3, K.NSD))
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
                                    tilt_max=tilt_max, thrust_min=thrust_min,
                                    thrust_max=thrust_max, g=g)
+        if kind == "adrc" and "r0" not in gains:
+            # the TD shapes the reference into a motion the vehicle can fly: its acceleration
+            # (fed forward) bounded by what the tilt and thrust limits allow
+            gains["r0"] = authority(self._M)
+        self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
+        self._h = float(self._P[0, K.P_H])
+        self._S = np.zeros((3, K.NSD))
         self._out = np.zeros(G.NO + 3)
         self._nan3 = np.full(3, math.nan)
         self._zero3 = np.zeros(3)
@@ -299,7 +313,7 @@ class PositionController:
     @property
     def td(self):
         """(3, 2) TD outputs v1, v2 per axis (classical ADRC)."""
-        return self._S[:, K.S_V1:K.S_V2 + 1].copy()
+        return np.array([K.td_output(row) for row in self._S])
 
     @property
     def params(self):
