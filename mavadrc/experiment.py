@@ -464,6 +464,7 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
             "roll": L[:, L_ROLL], "pitch": L[:, L_PITCH]}
     rec = _run_record(exp, i, j, seed, "inprocess", m, cols, r.duration, r.aborted,
                       r.hover_thrust, wall)
+    rec["hover_thrust_learnt"] = r.hover_thrust_learnt
     return rec, (L if keep_log else None)
 
 
@@ -502,6 +503,7 @@ def run_mavlink(exp, i, j, seed, out_dir):
     aborted = "; ".join(summary.get("aborted") or []) or None
     rec = _run_record(exp, i, j, seed, "mavlink", m, cols, traj.duration, aborted,
                       summary["hover_thrust"], wall)
+    rec["hover_thrust_learnt"] = summary.get("hover_thrust_learnt")
     rec["record_folder"] = str(folder)
     return rec, None
 

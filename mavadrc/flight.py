@@ -81,6 +81,10 @@ GRID_CHUNK = 2048
 #: Faster ones limit-cycled on PX4 SIH and ArduCopter SITL (wc 2.5, wo 12.5: +-21-34 deg).
 SAFE_WC = 1.0
 SAFE_WO = 4.0
+#: s: the time constant with which LADRC and ADRC learn the thrust per acceleration in flight
+#: from the vertical observer (like PX4's hover thrust estimator, on by default); a vehicle 30 %
+#: lighter than told otherwise gets 1.43x the horizontal loop gain it was tuned for
+THRUST_ESTIMATE_S = 2.0
 
 
 def default_gains(kind, input_model=False):
@@ -89,13 +93,14 @@ def default_gains(kind, input_model=False):
     not told, the slower ones that are safe on any vehicle of the family above."""
     if kind == "ladrc":
         if not input_model:
-            return {"wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
-        return {"wc": (2.5, 2.5, 3.0), "wo": (12.5, 12.5, 15.0)}
+            return {"wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3, "thrust_estimate": THRUST_ESTIMATE_S}
+        return {"wc": (2.5, 2.5, 3.0), "wo": (12.5, 12.5, 15.0),
+                "thrust_estimate": THRUST_ESTIMATE_S}
     if kind == "adrc":
         # The mission's trajectory comes with exact derivatives, so the TD (which would add lag
         # to a moving reference) is off unless the mission asks for it (td: true).
         g = {"td": False, "r": (8.0, 8.0, 8.0), "c": (1.0, 1.0, 1.0),
-             "delta": (0.05, 0.05, 0.05)}
+             "delta": (0.05, 0.05, 0.05), "thrust_estimate": THRUST_ESTIMATE_S}
         if not input_model:
             return {**g, "wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
         return {**g, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0)}
@@ -208,6 +213,9 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
             delta = np.broadcast_to(np.asarray(delta, dtype=float), 3)
             gains.setdefault("beta", tuple((3.0 * w, 3.0 * w * w * d ** 0.5, w ** 3 * d ** 0.75)
                                            for w, d in zip(wo, delta)))
+    learn = gains.pop("thrust_estimate", 0.0)
+    if learn:
+        gains["thrust_estimate_tau"] = float(learn)
     accel_max = gains.pop("accel_max", None)
     if accel_max is not None:
         gains["u_min"] = tuple(-a for a in accel_max)
@@ -927,6 +935,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         }
         if self.ctrl is not None:
             summary["delay_margin_s"] = margin_record(self.delay_margin)
+            # the hover thrust learnt in flight (thrust_estimate), against the one told above
+            summary["hover_thrust_learnt"] = (self.ctrl.hover_thrust_estimate
+                                              if self.ctrl.learns_thrust else None)
         if self.identification is not None:
             summary["identification"] = self.identification
         if self._attitudes:
@@ -952,13 +963,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.rec.write_summary(summary)
         return summary
 
+
 def carry_over(ctrl, old, pos, vel):
     """Start ``ctrl`` where ``old`` left off: at the measured ``pos``/``vel``, with ``old``'s
-    disturbance estimates and the acceleration it last commanded as the input model's state
-    (a controller made anew mid-flight then takes over without a jump)."""
+    disturbance estimates, the thrust it had learnt (both learning) and the acceleration it
+    last commanded as the input model's state (a controller made anew mid-flight then takes
+    over without a jump)."""
     ctrl.reset(pos, vel)
     ctrl._S[:, K.S_Z3] = old._S[:, K.S_Z3]
     ctrl._IN[:, IN_STATE] = old.accel_applied
+    if ctrl.learns_thrust and old.learns_thrust:
+        ctrl.adopt_thrust(old)
 
 
 def controller_record(spec, kind, gains):

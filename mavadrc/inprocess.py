@@ -351,6 +351,7 @@ class InProcessRun:
     status: int
     mission_start: float  # vehicle time of the mission's t = 0
     hover_thrust: float  # the normalized hover thrust the controller was given
+    hover_thrust_learnt: float = None  # what it had learnt by the end (None: it does not learn)
 
     @property
     def aborted(self):
@@ -500,7 +501,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         syaw, spq, spt, ref, cref, ctrl._S, Pc, Mc, ctrl._IN, latency, oracle, limits,
         sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset, log)
     v.ran(flown * per)
-    return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover)
+    learnt = float(Mc[G.M_G] * Mc[G.M_TPA]) if Mc[G.M_TPA_RATE] > 0.0 else None
+    return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover, learnt)
 
 
 @functools.lru_cache(maxsize=16)

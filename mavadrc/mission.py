@@ -390,6 +390,16 @@ def _read_controller(sec, kinds=None):
             c.gains["latency"] = sec.number("latency", ge=0.0, le=AGE_MAX)
         sec.check("latency", c.gains["latency"] == 0.0 or c.kind in ("ladrc", "adrc"),
                   "the observers compensate the samples' age: ladrc and adrc only")
+    if sec.has("thrust_estimate"):
+        # the time constant (s) with which the thrust per acceleration is learnt in flight from
+        # the vertical observer (0 or false: the figure told is kept)
+        if sec.data["thrust_estimate"] is False:
+            c.gains["thrust_estimate"] = 0.0
+        else:
+            c.gains["thrust_estimate"] = sec.number("thrust_estimate", ge=0.0, le=60.0)
+        sec.check("thrust_estimate", c.gains["thrust_estimate"] == 0.0
+                  or c.kind in ("ladrc", "adrc"),
+                  "the thrust is learnt from the vertical observer: ladrc and adrc only")
     if sec.has("beta"):
         c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
     if sec.has("td"):

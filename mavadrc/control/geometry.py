@@ -29,7 +29,9 @@ M_TPA = 1  # normalized thrust per m/s^2 of specific force (hover_thrust/g, or m
 M_TILT = 2  # tilt limit (rad)
 M_THR_MIN = 3  # normalized thrust limits
 M_THR_MAX = 4
-NM = 5
+M_TPA0 = 5  # the thrust per acceleration the controller was told (M_TPA: its estimate in flight)
+M_TPA_RATE = 6  # 1/s: how fast the position loop learns M_TPA in flight (0: it does not)
+NM = 7
 
 
 @jit
@@ -103,11 +105,13 @@ def accel_to_attitude(a0, a1, a2, yaw, m, out):
 
 
 def mapping_params(*, hover_thrust=None, mass=None, max_thrust=None, tilt_max=math.radians(35.0),
-                   thrust_min=0.05, thrust_max=1.0, g=GRAVITY):
+                   thrust_min=0.05, thrust_max=1.0, g=GRAVITY, thrust_estimate_tau=None):
     """Parameter vector of :func:`accel_to_attitude`.
 
     Thrust is normalised either from a hover-thrust figure (normalized thrust that holds a hover,
     like PX4's MPC_THR_HOVER) or from the mass and the maximum collective thrust (N).
+    ``thrust_estimate_tau`` (s): the time constant with which a position loop with a vertical
+    observer learns the thrust per acceleration in flight (None: it keeps the figure told).
     """
     if hover_thrust is not None:
         if mass is not None or max_thrust is not None:
@@ -133,8 +137,15 @@ def mapping_params(*, hover_thrust=None, mass=None, max_thrust=None, tilt_max=ma
         raise ValueError(f"need 0 <= thrust_min < thrust_max <= 1 (got {thrust_min!r}, {thrust_max!r})")
     if hi / tpa <= g:
         raise ValueError(f"thrust_max={hi} cannot hold a hover (hover needs {g * tpa:.3f})")
+    rate = 0.0
+    if thrust_estimate_tau is not None:
+        tau = float(thrust_estimate_tau)
+        if not (math.isfinite(tau) and tau > 0.0):
+            raise ValueError(f"thrust_estimate_tau must be a number of seconds > 0 (got {thrust_estimate_tau!r})")
+        rate = 1.0 / tau
     m = np.empty(NM)
     m[M_G], m[M_TPA], m[M_TILT], m[M_THR_MIN], m[M_THR_MAX] = g, tpa, tilt, lo, hi
+    m[M_TPA0], m[M_TPA_RATE] = tpa, rate
     return m
 
 

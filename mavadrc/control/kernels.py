@@ -436,15 +436,19 @@ def channel_start(s, p, y, ydot):
 
 @jit
 def hold_disturbance(s):
-    """Zero the disturbance estimate z3 and the PID integrator (and its read-out).
+    """Hold the disturbance estimate z3 and the PID integrator (and its read-out) at no upward
+    push.
 
-    Call it after each step while the vehicle rests on the ground: the ground's reaction is not
-    a disturbance the observers or the integrator should learn and carry into the take-off.
+    Call it after each step of a vertical channel while the vehicle rests on the ground: the
+    ground's reaction (it pushes up: z3 < 0 in NED, a PID integrator > 0) is not a disturbance
+    to learn and carry into the take-off.  A push down is kept: a vehicle heavier than told
+    does not rise on the thrust the loop expected to lift it, and its observer must learn
+    that weight on the ground, or the loop waits there for an error large enough to lift it.
     """
-    s[S_Z3] = 0.0
-    s[S_I] = 0.0
+    s[S_Z3] = max(s[S_Z3], 0.0)
+    s[S_I] = min(s[S_I], 0.0)
     if s.shape[0] >= NSD:
-        s[DL_Z1 + 2] = 0.0
+        s[DL_Z1 + 2] = max(s[DL_Z1 + 2], 0.0)
 
 
 @jit

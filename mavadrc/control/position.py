@@ -56,6 +56,9 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     hh = K.real_step(P[0], h)
     if hh != hh:
         return False
+    if M[G.M_TPA_RATE] > 0.0:
+        # from the estimates of the last step (on the ground its z3 was held at 0 after it)
+        learn_thrust(S[2], M, IN[2, IN_STATE], hh)
     aged = age == age
     for i in range(3):
         hs = hh
@@ -89,6 +92,45 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
     return True
+
+
+#: the thrust per acceleration learnt in flight stays within this factor of the figure told
+TPA_RANGE = 2.0
+
+
+@jit
+def learn_thrust(Sz, M, applied, h):
+    """Learn the thrust per acceleration (M_TPA) from the vertical observer, as PX4's hover
+    thrust estimator learns MPC_THR_HOVER.
+
+    With M_TPA too large by a factor k (the vehicle lighter than told), every thrust gives k
+    times the specific force the map meant: the vertical observer cancels that on its own axis
+    (its disturbance z3 = (1 - k) f_up, f_up = g - a_z the upward specific force it modelled as
+    applied), but the tilt still turns k times the horizontal acceleration commanded, and a
+    horizontal loop tuned to the margin it keeps then limit-cycles.  So M_TPA moves towards
+    M_TPA / k at M_TPA_RATE per second (far slower than any observer, which relearns z3 as it
+    moves), within TPA_RANGE of the figure told.  What is learnt is moved out of z3: with M_TPA
+    times f, z3 += f_up (1/f - 1), so the next command asks for f_up / f, the thrust and the
+    observer's prediction are what they were, and the vertical loop does not count the weight
+    twice while z3 relearns (counted twice, a vehicle 30 % heavier leapt 0.5 m past its
+    take-off altitude).  On the ground only a push down is kept in z3 (:func:`kernels.
+    hold_disturbance`): a weight the thrust does not lift is learnt there too."""
+    up = M[G.M_G] - applied
+    if not (up > 0.25 * M[G.M_G]):
+        return  # falling or thrust near its floor: no hover to learn from
+    k = 1.0 - Sz[K.S_Z3] / up
+    if not (k > 0.0):
+        return
+    a = min(h * M[G.M_TPA_RATE], 1.0)
+    old = M[G.M_TPA]
+    tpa = old + a * (old / k - old)
+    lo, hi = M[G.M_TPA0] / TPA_RANGE, M[G.M_TPA0] * TPA_RANGE
+    tpa = min(max(tpa, lo), hi)
+    M[G.M_TPA] = tpa
+    dz = up * (old / tpa - 1.0)
+    Sz[K.S_Z3] += dz
+    if Sz.shape[0] >= K.NSD:
+        Sz[K.DL_Z1 + 2] += dz
 
 
 @jit
@@ -195,7 +237,7 @@ class PositionController:
 
     def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
                  tilt_max=math.radians(35.0), thrust_min=0.05, thrust_max=1.0, g=G.GRAVITY,
-                 latency=None, **gains):
+                 latency=None, thrust_estimate_tau=None, **gains):
         self.kind = kind
         self.latency = check_latency(latency, kind)
         lag = gains.pop("input_lag", None)
@@ -211,9 +253,13 @@ class PositionController:
                     raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
+        if thrust_estimate_tau is not None and kind not in ("ladrc", "adrc"):
+            raise ValueError("the thrust is learnt from the vertical observer: thrust_estimate_tau "
+                             f"applies to the 'ladrc' and 'adrc' kinds, not {kind!r}")
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
                                    tilt_max=tilt_max, thrust_min=thrust_min,
-                                   thrust_max=thrust_max, g=g)
+                                   thrust_max=thrust_max, g=g,
+                                   thrust_estimate_tau=thrust_estimate_tau)
         if kind == "adrc" and "r0" not in gains:
             # the TD shapes the reference into a motion the vehicle can fly: its acceleration
             # (fed forward) bounded by what the tilt and thrust limits allow
@@ -301,14 +347,40 @@ class PositionController:
     @property
     def z(self):
         """(3, 3) observer estimates: row per axis, columns z1, z2, z3 (PID: the position and
-        rate it used, and its integrator's disturbance estimate)."""
-        return self._S[:, K.S_Z1:K.S_Z3 + 1].copy()
+        rate it used, and its integrator's disturbance estimate).  The vertical z3 is the
+        total disturbance against the thrust told: with the thrust learnt
+        (``thrust_estimate_tau``), the part of it the learnt thrust has taken over is added
+        back (:attr:`disturbance`)."""
+        z = self._S[:, K.S_Z1:K.S_Z3 + 1].copy()
+        z[2, 2] = self.disturbance[2]
+        return z
 
     @property
     def disturbance(self):
         """Estimated total disturbance acceleration per axis (z3; zero for PD; PID: minus the
-        integrator's acceleration)."""
-        return self._S[:, K.S_Z3].copy()
+        integrator's acceleration), against the thrust told: with the thrust learnt, vertically
+        z3 + f_up (M_TPA / M_TPA0 - 1), the acceleration the learnt thrust adds to what the told
+        one would give (f_up = g - the vertical acceleration applied)."""
+        d = self._S[:, K.S_Z3].copy()
+        if self.learns_thrust:
+            up = self._M[G.M_G] - self._IN[2, IN_STATE]
+            d[2] += up * (self._M[G.M_TPA] / self._M[G.M_TPA0] - 1.0)
+        return d
+
+    def adopt_thrust(self, other):
+        """Take the thrust per acceleration ``other`` has learnt (a controller taking over)."""
+        self._M[G.M_TPA] = other._M[G.M_TPA]
+
+    @property
+    def learns_thrust(self):
+        """Whether the thrust per acceleration is learnt in flight (``thrust_estimate_tau``)."""
+        return bool(self._M[G.M_TPA_RATE] > 0.0)
+
+    @property
+    def hover_thrust_estimate(self):
+        """The normalized thrust that holds a hover as the controller now takes it: the figure
+        told, or what it has learnt in flight (``thrust_estimate_tau``)."""
+        return float(self._M[G.M_G] * self._M[G.M_TPA])
 
     @property
     def td(self):
