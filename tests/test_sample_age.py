@@ -204,8 +204,7 @@ def test_the_tuned_ladrc_flies_the_spiral_in_wind_through_link_latency(robustnes
                                                                         at_most):
     """The robustness study's tuned LADRC (wc 4, wo 23.9, input model measured, ``latency:
     auto``), the spiral in physical wind, the samples 40 or 60 ms old on arrival: max error
-    after settling 0.056 and 0.067 m measured (told nothing of the age: 0.85 and 2.4 m, the
-    thrust saturating at 60 ms)."""
+    after settling 0.056 and 0.067 m measured (told nothing of the age: 0.34 m at 40 ms)."""
     assert _max_error(robustness, scenario, "LADRC") <= at_most
 
 
@@ -216,7 +215,8 @@ def test_the_tuned_adrc_flies_the_spiral_through_40_ms(robustness):
 def test_told_nothing_of_the_age_the_same_ladrc_breaks_at_40_ms(robustness):
     c = robustness.controllers[[c.name for c in robustness.controllers].index("LADRC")].spec
     blind = dataclasses.replace(c, gains={k: v for k, v in c.gains.items() if k != "latency"})
-    assert _max_error(robustness, "latency 40 ms", "LADRC", spec=blind) > 0.5  # 0.85 measured
+    # 0.34 m measured (0.85 before the hover thrust was learnt in flight), against 0.056 told
+    assert _max_error(robustness, "latency 40 ms", "LADRC", spec=blind) > 0.25
 
 
 LOCKSTEP = """

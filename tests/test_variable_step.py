@@ -624,9 +624,12 @@ def test_the_helpers_are_compiled_kernels_callable_from_a_compiled_loop():
     assert z2 == 0.5
     assert np.array_equal(c.td, [[1.0, 0.5], [2.0, -0.5], [-3.0, 0.1]])
     s = K.new_state()
-    s[K.S_Z3], s[K.S_I] = 2.0, 1.0
+    s[K.S_Z3], s[K.S_I] = -2.0, 1.0  # the ground pushing up: not learnt
     K.hold_disturbance(s)
     assert s[K.S_Z3] == 0.0 and s[K.S_I] == 0.0
+    s[K.S_Z3], s[K.S_I] = 2.0, -1.0  # a weight the thrust does not lift: kept
+    K.hold_disturbance(s)
+    assert s[K.S_Z3] == 2.0 and s[K.S_I] == -1.0
 
 
 def test_single_channel_api_takes_the_interval():
