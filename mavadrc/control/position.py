@@ -264,6 +264,13 @@ class PositionController:
             # the TD shapes the reference into a motion the vehicle can fly: its acceleration
             # (fed forward) bounded by what the tilt and thrust limits allow
             gains["r0"] = authority(self._M)
+        if kind == "adrc" and "h0" not in gains:
+            # ... and near the reference it is a linear filter on the loop's own time scale (the
+            # NLSEF's h1 = 1/wc; Han's default 10 h): with h0 = h its fh is bang-bang at +-r0 for
+            # any offset past r0 h^2 (under a millimetre), so a controller taking over 3 cm off
+            # its reference was kicked at the full 7 m/s^2 (PX4 SITL)
+            gains["h0"] = tuple(max(float(_axis(gains.get("h1", 10.0 * h), i, "h1")), h)
+                                for i in range(3))
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
         self._h = float(self._P[0, K.P_H])
         self._S = np.zeros((3, K.NSD))
