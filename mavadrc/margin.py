@@ -128,6 +128,12 @@ class _Loop:
         z0[:self.ns] = s
         J = np.empty((self.size, self.size))
         for j in range(self.size):
+            if j == K.S_TDR:
+                # the TD's time off its grid: 0 at the nominal step, where the loop runs; a
+                # difference across 0 would step the TD once or not at all
+                J[:, j] = 0.0
+                J[j, j] = 1.0
+                continue
             d = np.zeros(self.size)
             d[j] = _EPS
             J[:, j] = (self.step(z0 + d) - self.step(z0 - d)) / (2.0 * _EPS)

@@ -164,3 +164,19 @@ def test_near_its_reference_the_position_loops_td_is_a_linear_filter():
     peak_h, _ = takeover(h0=HP)
     assert peak < 0.1 and abs(xs[-1] - 0.03) < 1e-3 and xs.max() < 0.031
     assert peak_h > 5.0
+
+
+def test_the_td_is_outside_the_loop_its_delay_margin_measures():
+    """The TD shapes the reference; it is no part of the feedback loop, so the delay margin
+    (and the gains `input_lag: auto` slows to keep it) is the same with it and without.  Its
+    time off its grid (0 at the nominal step) made the linearisation unstable once: a mission
+    with td: true was slowed to wc 0.125 on PX4 SITL and drifted 1.1 m off its hover."""
+    from mavadrc.margin import delay_margin
+
+    def margin(td):
+        c = PositionController("adrc", h=HP, hover_thrust=0.5, td=td, h1=1.0, r=8.0, c=1.0,
+                               delta=0.05, beta=(15.0, 75.0 * 0.05 ** 0.5, 125.0 * 0.05 ** 0.75),
+                               input_lag=0.25)
+        return delay_margin(c)
+
+    assert margin(True) == margin(False) > 0.1
