@@ -70,7 +70,7 @@ def stop(srv, link):
 
 
 def test_five_percent_telemetry_loss_keeps_the_error_within_twice_the_clean_flight(tmp_path):
-    mission = short_mission(tmp_path)
+    mission = short_mission(tmp_path, hover=1)
     srv, link = lossy_vehicle(link_seed=1)
     try:
         clean, _, _ = fly_through(link, mission, tmp_path)
@@ -96,7 +96,7 @@ def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
     try:
         link.down.loss = 0.2
         link.up.loss = 0.2  # stream requests and commands are lost too
-        summary, folder, text = fly_through(link, short_mission(tmp_path), tmp_path)
+        summary, folder, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
     finally:
         stop(srv, link)
     if summary["landed"]:
@@ -164,7 +164,7 @@ def test_lost_stream_requests_are_sent_again(tmp_path):
     srv, link = lossy_vehicle(link_seed=7)
     rule = link.drop_command(M.MAV_CMD_SET_MESSAGE_INTERVAL, n=2)
     try:
-        summary, _, text = fly_through(link, short_mission(tmp_path), tmp_path)
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
     finally:
         stop(srv, link)
     assert rule.dropped == 2
@@ -178,7 +178,7 @@ def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
     srv, link = lossy_vehicle(link_seed=8)
     link.drop_messages("COMMAND_LONG", direction="up", command=M.MAV_CMD_SET_MESSAGE_INTERVAL)
     try:
-        summary, _, text = fly_through(link, short_mission(tmp_path), tmp_path)
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
     finally:
         stop(srv, link)
     assert "not the 100 Hz asked" in text
