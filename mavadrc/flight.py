@@ -50,7 +50,7 @@ from .ground import GroundPhases, lifted_off
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .control import kernels as K
-from .control.position import IN_STATE
+from .control.position import IN_STATE, THRUST_ESTIMATE_S
 from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
                        observer_lag, summary_line)
 from .margin import delay_margin, margin_record, margin_text
@@ -81,10 +81,6 @@ GRID_CHUNK = 2048
 #: Faster ones limit-cycled on PX4 SIH and ArduCopter SITL (wc 2.5, wo 12.5: +-21-34 deg).
 SAFE_WC = 1.0
 SAFE_WO = 4.0
-#: s: the time constant with which LADRC and ADRC learn the thrust per acceleration in flight
-#: from the vertical observer (like PX4's hover thrust estimator, on by default); a vehicle 30 %
-#: lighter than told otherwise gets 1.43x the horizontal loop gain it was tuned for
-THRUST_ESTIMATE_S = 2.0
 
 
 def default_gains(kind, input_model=False):
@@ -1005,5 +1001,8 @@ def print_table(summary, out=None):
         else:
             out.write(f"  after {summary['settle_s']:.0f} s: RMS {a['rms_error_m']:.4f}, "
                       f"max {a['max_error_m']:.4f}\n")
+    learnt, told = summary.get("hover_thrust_learnt"), summary.get("hover_thrust")
+    if learnt is not None and told is not None:
+        out.write(f"  hover thrust learnt in flight {learnt:.3f} (told {told:.3f})\n")
     out.flush()
 

@@ -28,6 +28,7 @@ from sim.yamlio import ConfigError, Section, config_path, described, did_you_mea
 
 from . import trajectories as T
 from .control.kernels import AGE_MAX
+from .control.position import THRUST_ESTIMATE_S
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
@@ -367,7 +368,7 @@ def _read_controller(sec, kinds=None):
     c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
     c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
     c.thrust_max = sec.number("thrust_max", 1.0, gt=0.0, le=1.0)
-    per_axis = ("wc", "wo", "b0", "kp", "kd", "r0", "r", "c", "h1", "delta", "accel_max")
+    per_axis = ("wc", "wo", "b0", "kp", "kd", "r0", "h0", "r", "c", "h1", "delta", "accel_max")
     for key in per_axis:
         if sec.has(key):
             c.gains[key] = tuple(sec.vector(key, 3, scalar_ok=True, gt=0.0))
@@ -392,9 +393,10 @@ def _read_controller(sec, kinds=None):
                   "the observers compensate the samples' age: ladrc and adrc only")
     if sec.has("thrust_estimate"):
         # the time constant (s) with which the thrust per acceleration is learnt in flight from
-        # the vertical observer (0 or false: the figure told is kept)
-        if sec.data["thrust_estimate"] is False:
-            c.gains["thrust_estimate"] = 0.0
+        # the vertical observer (0 or false: the figure told is kept; true: the default 2 s)
+        if isinstance(sec.data["thrust_estimate"], bool):
+            c.gains["thrust_estimate"] = THRUST_ESTIMATE_S if sec.boolean("thrust_estimate") \
+                else 0.0
         else:
             c.gains["thrust_estimate"] = sec.number("thrust_estimate", ge=0.0, le=60.0)
         sec.check("thrust_estimate", c.gains["thrust_estimate"] == 0.0

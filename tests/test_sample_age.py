@@ -154,7 +154,7 @@ def test_a_loop_unstable_on_its_delay_settles_when_told_it():
     assert not abs(y - math.sin((n - 1) * 0.01)) < 1.0
 
 
-def test_the_controller_and_the_mission_file_check_the_latency(tmp_path):
+def test_the_controller_and_the_mission_file_check_the_latency_and_the_thrust_estimate(tmp_path):
     def ctrl(kind="ladrc", **gains):
         return PositionController(kind, h=0.01, hover_thrust=0.5, **gains)
 
@@ -176,6 +176,18 @@ def test_the_controller_and_the_mission_file_check_the_latency(tmp_path):
     assert mission("  type: ladrc\n  latency: auto\n").controller.gains["latency"] == "auto"
     assert mission("  type: adrc\n  latency: 0.05\n").controller.gains["latency"] == 0.05
     assert mission("  type: pd\n  latency: 0\n").controller.gains["latency"] == 0.0
+    # the hover thrust learnt in flight: seconds, true (the default 2 s) or false / 0 (off)
+    assert mission("  type: ladrc\n  thrust_estimate: 1.5\n").controller.gains[
+        "thrust_estimate"] == 1.5
+    assert mission("  type: adrc\n  thrust_estimate: true\n").controller.gains[
+        "thrust_estimate"] == 2.0
+    assert mission("  type: pd\n  thrust_estimate: false\n").controller.gains[
+        "thrust_estimate"] == 0.0
+    for body, why in (("  type: ladrc\n  thrust_estimate: -1\n", "thrust_estimate"),
+                      ("  type: ladrc\n  thrust_estimate: soon\n", "thrust_estimate"),
+                      ("  type: pid\n  thrust_estimate: 2\n", "ladrc and adrc only")):
+        with pytest.raises(ConfigError, match=why):
+            mission(body)
     for body, why in (("  type: ladrc\n  latency: -0.1\n", "latency"),
                       ("  type: ladrc\n  latency: soon\n", "latency"),
                       ("  type: pid\n  latency: auto\n", "ladrc and adrc only")):

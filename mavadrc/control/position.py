@@ -96,6 +96,10 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
 
 #: the thrust per acceleration learnt in flight stays within this factor of the figure told
 TPA_RANGE = 2.0
+#: s: the time constant with which a mission's LADRC and ADRC learn the thrust per acceleration
+#: in flight (``thrust_estimate``, on by default, like PX4's hover thrust estimator); a vehicle
+#: 30 % lighter than told otherwise gets 1.43x the horizontal loop gain it was tuned for
+THRUST_ESTIMATE_S = 2.0
 
 
 @jit
