@@ -970,6 +970,8 @@ def carry_over(ctrl, old, pos, vel):
     ctrl._IN[:, IN_STATE] = old.accel_applied
     if ctrl.learns_thrust and old.learns_thrust:
         ctrl.adopt_thrust(old)
+    elif old.learns_thrust:  # the new one keeps the thrust told: its z3 is the whole disturbance
+        ctrl._S[2, K.S_Z3] = old.disturbance[2]
 
 
 def controller_record(spec, kind, gains):

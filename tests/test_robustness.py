@@ -320,3 +320,38 @@ def test_the_linearised_disturbance_response_is_the_closed_form():
         pytest.approx(abs((1.0 - lag) / loop), rel=0.02)
     fast = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(40.0, 40.0, 40.0))
     assert np.all(np.isnan(disturbance_response(fast, w, tau=0.13)))  # unstable: no response
+
+
+def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturbance():
+    """After the identification the mission's controller takes over (flight.carry_over): one
+    that learns too starts from the thrust learnt; one that does not gets the whole vertical
+    disturbance against the thrust told in its z3, so neither asks for a different thrust."""
+    from mavadrc.control import PositionController
+    from mavadrc.flight import carry_over
+
+    g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
+
+    def make(tau):
+        return PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0,
+                                  thrust_estimate_tau=tau)
+
+    old = make(1.0)
+    p, v = np.array([0.0, 0.0, -1.0]), np.zeros(3)
+    old.reset(p, v)
+    for _ in range(1500):
+        # the thrust the map gives, on the true vehicle: the specific force it meant, times the
+        # hover thrust the controller now takes over the true one
+        a, r = old.accel_applied, old.hover_thrust_estimate / (0.5 / k)
+        acc = np.array([r * a[0], r * a[1], g - r * (g - a[2])])
+        p, v = p + h * v + 0.5 * h * h * acc, v + h * acc
+        old.update(p, v, [0.0, 0.0, -1.0])
+    assert old.hover_thrust_estimate == pytest.approx(0.5 / k, rel=0.02)
+    for tau, learns in ((1.0, True), (None, False)):
+        new = make(tau)
+        carry_over(new, old, p, v)
+        assert new.hover_thrust_estimate == pytest.approx(
+            old.hover_thrust_estimate if learns else 0.5)
+        assert new.disturbance[2] == pytest.approx(old.disturbance[2], abs=1e-12)
+        q_old, t_old = old.update(p, v, [0.0, 0.0, -1.0])
+        q_new, t_new = new.update(p, v, [0.0, 0.0, -1.0])
+        assert t_new == pytest.approx(t_old, rel=0.02)
