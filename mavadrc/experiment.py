@@ -463,8 +463,7 @@ def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
             "dist": L[:, L_DIST:L_DIST + 3], "yaw": L[:, L_YAW], "ref_yaw": L[:, L_REF_YAW],
             "roll": L[:, L_ROLL], "pitch": L[:, L_PITCH]}
     rec = _run_record(exp, i, j, seed, "inprocess", m, cols, r.duration, r.aborted,
-                      r.hover_thrust, wall)
-    rec["hover_thrust_learnt"] = r.hover_thrust_learnt
+                      r.hover_thrust, wall, r.hover_thrust_learnt)
     return rec, (L if keep_log else None)
 
 
@@ -502,14 +501,15 @@ def run_mavlink(exp, i, j, seed, out_dir):
     traj, _ = m.build_trajectory()
     aborted = "; ".join(summary.get("aborted") or []) or None
     rec = _run_record(exp, i, j, seed, "mavlink", m, cols, traj.duration, aborted,
-                      summary["hover_thrust"], wall)
-    rec["hover_thrust_learnt"] = summary.get("hover_thrust_learnt")
+                      summary["hover_thrust"], wall, summary.get("hover_thrust_learnt"))
     rec["record_folder"] = str(folder)
     return rec, None
 
 
-def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, wall):
-    """The record of one run from its per-step columns (either path)."""
+def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, wall,
+                hover_thrust_learnt=None):
+    """The record of one run from its per-step columns (either path); ``hover_thrust_learnt``:
+    what the controller had learnt by the end (None: it does not learn)."""
     sc = exp.scenarios[i]
     c = exp.controllers[j]
     rec = {"scenario": sc.name, "group": sc.group, "controller": c.name, "kind": c.kind,
@@ -533,6 +533,7 @@ def _run_record(exp, i, j, seed, via, m, cols, duration, aborted, hover_thrust, 
                                             m.attitude_controller)
     if m.identification is not None:  # input_lag: auto, as identified on the vehicle
         rec["input_lag_identified"] = list(m.identification["input_lag"])
+    rec["hover_thrust_learnt"] = hover_thrust_learnt
     rec["wall_s"] = wall
     return rec
 

@@ -501,7 +501,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         syaw, spq, spt, ref, cref, ctrl._S, Pc, Mc, ctrl._IN, latency, oracle, limits,
         sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset, log)
     v.ran(flown * per)
-    learnt = float(Mc[G.M_G] * Mc[G.M_TPA]) if Mc[G.M_TPA_RATE] > 0.0 else None
+    ctrl.adopt_thrust_of(Mc)  # what the run learnt, read as the flight reads it
+    learnt = ctrl.hover_thrust_estimate if ctrl.learns_thrust else None
     return InProcessRun(log[:rows], phases, traj.duration, int(status), t0, hover, learnt)
 
 

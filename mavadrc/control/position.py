@@ -264,18 +264,18 @@ class PositionController:
                                    tilt_max=tilt_max, thrust_min=thrust_min,
                                    thrust_max=thrust_max, g=g,
                                    thrust_estimate_tau=thrust_estimate_tau)
-        if kind == "adrc" and "r0" not in gains:
-            # the TD shapes the reference into a motion the vehicle can fly: its acceleration
-            # (fed forward) bounded by what the tilt and thrust limits allow
-            gains["r0"] = authority(self._M)
-        if kind == "adrc" and "h0" not in gains:
-            # ... and near the reference it is a linear filter on the loop's own time scale (the
-            # NLSEF's h1 = 1/wc; Han's default 10 h): with h0 = h its fh is bang-bang at +-r0 for
-            # any offset past r0 h^2 (under a millimetre), so a controller taking over 3 cm off
-            # its reference was kicked at the full 7 m/s^2 (PX4 SITL)
-            gains["h0"] = tuple(max(float(_axis(gains.get("h1", 10.0 * h), i, "h1")), h)
-                                for i in range(3))
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
+        if kind == "adrc":
+            # the TD shapes the reference into a motion the vehicle can fly: its acceleration
+            # (fed forward) bounded by what the tilt and thrust limits allow; and near the
+            # reference it is a linear filter on the loop's own time scale, the NLSEF's h1
+            # (1/wc): with h0 = h its fh is bang-bang at +-r0 for any offset past r0 h^2 (under
+            # a millimetre), so a controller taking over 3 cm off its reference was kicked at
+            # the full 7 m/s^2 (PX4 SITL)
+            if "r0" not in gains:
+                self._P[:, K.P_R0] = authority(self._M)
+            if "h0" not in gains:
+                self._P[:, K.P_H0] = np.maximum(self._P[:, K.P_H1], self._P[:, K.P_H])
         self._h = float(self._P[0, K.P_H])
         self._S = np.zeros((3, K.NSD))
         self._out = np.zeros(G.NO + 3)
@@ -380,7 +380,12 @@ class PositionController:
 
     def adopt_thrust(self, other):
         """Take the thrust per acceleration ``other`` has learnt (a controller taking over)."""
-        self._M[G.M_TPA] = other._M[G.M_TPA]
+        self.adopt_thrust_of(other._M)
+
+    def adopt_thrust_of(self, mapping):
+        """Take the thrust per acceleration of a mapping vector (a copy of :attr:`params`' that
+        a batch kernel flew and learnt in)."""
+        self._M[G.M_TPA] = mapping[G.M_TPA]
 
     @property
     def learns_thrust(self):
