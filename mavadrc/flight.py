@@ -108,6 +108,15 @@ def default_gains(kind, input_model=False):
     return {"wc": (2.5, 2.5, 3.0)}
 
 
+def identification_gains():
+    """The gains that fly the identification's doublets: the safe default LADRC, keeping the
+    hover thrust it is told (and, when the fit fails, the rest of the mission).  The fit needs
+    the map from commanded to produced acceleration to hold still over its window; learning the
+    thrust there moves it with every vertical doublet (on PX4 SITL the vertical fit once came
+    out with gain -8 and was rejected)."""
+    return {**default_gains("ladrc", False), "thrust_estimate": 0.0}
+
+
 def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
@@ -420,7 +429,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """(kind, gains) flown now: the mission's, or, while the input model is identified, the
         safe default LADRC (:data:`SAFE_WC`, no input model)."""
         if self._identifying():
-            return "ladrc", default_gains("ladrc", False)
+            return "ladrc", identification_gains()
         if self.gains is None:
             self.gains = resolve_gains(
                 self.m.controller, self.kind,

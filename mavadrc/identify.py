@@ -235,11 +235,11 @@ def identification_mission(mission, calm=True):
     identified before the change, as a vehicle loaded or worn after its identification would."""
     import dataclasses
 
-    from .flight import default_gains
+    from .flight import identification_gains
     from .mission import ControllerSpec
     spec = mission.controller
     ctrl = ControllerSpec(kind="ladrc", name="identification", rate_hz=spec.rate_hz,
-                          gains=default_gains("ladrc", False), tilt_max_deg=spec.tilt_max_deg,
+                          gains=identification_gains(), tilt_max_deg=spec.tilt_max_deg,
                           thrust_min=spec.thrust_min, thrust_max=spec.thrust_max)
     segments = [("takeoff", {"altitude": ALTITUDE, "speed": 0.5}, None),
                 ("identify", {}, None)]

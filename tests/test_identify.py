@@ -129,6 +129,20 @@ def test_bundled_vehicles_are_identified_within_15_percent(name):
     assert all(rec["axes"][a]["r2"] > 0.99 for a in "xyz")
 
 
+def test_the_doublets_are_flown_on_the_hover_thrust_told():
+    """The fit needs the map from commanded to produced acceleration to hold still: the
+    identification's controller does not learn the hover thrust (the mission's controller,
+    after the switch, does)."""
+    from mavadrc.flight import identification_gains, resolve_gains
+    from mavadrc.inprocess import fly_inprocess
+
+    m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
+    run = fly_inprocess(I.identification_mission(m), kind="ladrc", seed=0)
+    assert run.hover_thrust_learnt is None
+    assert identification_gains()["thrust_estimate"] == 0.0
+    assert resolve_gains(m.controller, identified=(0.13, 0.13, 0.05))["thrust_estimate"] > 0.0
+
+
 def test_sample_latency_is_identified_as_dead_time_within_one_sample():
     m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
     I._CACHE.clear()
