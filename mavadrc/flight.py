@@ -87,19 +87,17 @@ def default_gains(kind, input_model=False):
     """Position-loop gains (per axis x, y, z).  LADRC and ADRC: told the vehicle's response
     (``input_model``: the mission gives ``input_lag``), gains that suit the bundled vehicles;
     not told, the slower ones that are safe on any vehicle of the family above."""
-    if kind == "ladrc":
-        if not input_model:
-            return {"wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3, "thrust_estimate": THRUST_ESTIMATE_S}
-        return {"wc": (2.5, 2.5, 3.0), "wo": (12.5, 12.5, 15.0),
-                "thrust_estimate": THRUST_ESTIMATE_S}
-    if kind == "adrc":
-        # The mission's trajectory comes with exact derivatives, so the TD (which would add lag
-        # to a moving reference) is off unless the mission asks for it (td: true).
-        g = {"td": False, "r": (8.0, 8.0, 8.0), "c": (1.0, 1.0, 1.0),
-             "delta": (0.05, 0.05, 0.05), "thrust_estimate": THRUST_ESTIMATE_S}
+    if kind in ("ladrc", "adrc"):
+        # both learn the hover thrust in flight (THRUST_ESTIMATE_S)
+        g = {"thrust_estimate": THRUST_ESTIMATE_S}
+        if kind == "adrc":
+            # The mission's trajectory comes with exact derivatives, so the TD (which would add
+            # lag to a moving reference) is off unless the mission asks for it (td: true).
+            g.update(td=False, r=(8.0, 8.0, 8.0), c=(1.0, 1.0, 1.0), delta=(0.05, 0.05, 0.05))
         if not input_model:
             return {**g, "wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
-        return {**g, "wc": (2.5, 2.5, 3.0), "wo": (12.0, 12.0, 15.0)}
+        told = (12.5, 12.5, 15.0) if kind == "ladrc" else (12.0, 12.0, 15.0)
+        return {**g, "wc": (2.5, 2.5, 3.0), "wo": told}
     if kind == "pid":
         # the PD default's bandwidth plus an integrator (channels.pid_gains): kp_pos = wc/2,
         # kp_vel = 2 wc, ki_vel = wc^2/2, no D, i.e. kp_pos (1.25, 1.25, 1.5) /s, kp_vel

@@ -363,7 +363,7 @@ class PositionController:
         (``thrust_estimate_tau``), the part of it the learnt thrust has taken over is added
         back (:attr:`disturbance`)."""
         z = self._S[:, K.S_Z1:K.S_Z3 + 1].copy()
-        z[2, 2] = self.disturbance[2]
+        z[2, 2] += self._learnt_share()
         return z
 
     @property
@@ -373,10 +373,14 @@ class PositionController:
         z3 + f_up (M_TPA / M_TPA0 - 1), the acceleration the learnt thrust adds to what the told
         one would give (f_up = g - the vertical acceleration applied)."""
         d = self._S[:, K.S_Z3].copy()
-        if self.learns_thrust:
-            up = self._M[G.M_G] - self._IN[2, IN_STATE]
-            d[2] += up * (self._M[G.M_TPA] / self._M[G.M_TPA0] - 1.0)
+        d[2] += self._learnt_share()
         return d
+
+    def _learnt_share(self):
+        """The vertical acceleration the learnt thrust adds to what the one told would give,
+        f_up (M_TPA / M_TPA0 - 1): 0 when the thrust is not learnt."""
+        up = self._M[G.M_G] - self._IN[2, IN_STATE]
+        return up * (self._M[G.M_TPA] / self._M[G.M_TPA0] - 1.0)
 
     def adopt_thrust(self, other):
         """Take the thrust per acceleration ``other`` has learnt (a controller taking over)."""
