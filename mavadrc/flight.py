@@ -52,7 +52,7 @@ from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE, THRUST_ESTIMATE_S
 from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
-                       observer_lag, summary_line)
+                       observer_drag, observer_lag, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -115,22 +115,26 @@ def identification_gains():
     return {**default_gains("ladrc", False), "thrust_estimate": 0.0}
 
 
-def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None):
+def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None,
+                  drag=None):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
     that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
     ``input_lag``), the observer's bandwidth derived from the controller's where only that is
     given, and ``input_lag: auto`` replaced by the lags ``identified`` on the vehicle
-    (:mod:`mavadrc.identify`).  Given as a mission's controller, they fly the same controller
+    (:mod:`mavadrc.identify`), ``drag: auto`` (its default with ``input_lag: auto``) by the
+    ``drag`` identified with them (None: none).  Given as a mission's controller, they fly the same controller
     again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
     given = dict(spec.gains) if kind == spec.kind else {}
     if kind in ("ladrc", "adrc"):
         # the vehicle's response and the samples' age, not gains: they hold for any observer
         # flown on it
-        for key in ("input_lag", "latency"):
+        for key in ("input_lag", "latency", "drag"):
             if key in spec.gains:
                 given.setdefault(key, spec.gains[key])
+        if given.get("input_lag") == "auto":
+            given.setdefault("drag", "auto")
     lag = given.get("input_lag")
     told = lag == "auto" or (lag is not None and any(float(v) > 0.0 for v in lag))
     gains = default_gains(kind, told)  # the mission's gains, where given, override these
@@ -139,6 +143,9 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
         # the observer at the defaults' ratio to the controller given
         ratio = 5.0 if told else SAFE_WO / SAFE_WC
         gains["wo"] = tuple(ratio * float(w) for w in given["wc"])
+    if identified is not None and gains.get("drag") == "auto":
+        # None: the identification gave lags only (a caller's), no drag to model
+        gains["drag"] = (0.0,) * 3 if drag is None else tuple(float(x) for x in drag)
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
             and "wc" not in given and "wo" not in given:
         # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
@@ -432,7 +439,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self.gains = resolve_gains(
                 self.m.controller, self.kind,
                 identified=(observer_lag(self.identification, self.m.controller)
-                            if self.identification else None))
+                            if self.identification else None),
+                drag=observer_drag(self.identification) if self.identification else None)
         return self.kind, self.gains
 
     def _make_controller(self, hover):
@@ -497,7 +505,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if failure_text(rec) is not None:
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
-                              identified=observer_lag(rec, self.m.controller))
+                              identified=observer_lag(rec, self.m.controller),
+                              drag=observer_drag(rec))
         ctrl, margin = self._build(self.hover, self.kind, gains)
         return rec, ctrl, gains, margin
 
@@ -517,8 +526,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if "wc" in gains and "wo" in gains:
             bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
                   f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
-        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{bw} from here; "
-                 f"{margin_text(self.delay_margin)}")
+        drag = ""
+        if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
+            drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
+        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{drag}{bw} from "
+                 f"here; {margin_text(self.delay_margin)}")
         slow = max(gains["input_lag"][0], gains["input_lag"][1])
         if self.delay_margin is not None and self.delay_margin < MARGIN_SHARE * slow:
             self._warn_once("margin", f"the delay margin ({1e3 * self.delay_margin:.0f} ms) is "
@@ -698,8 +710,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         grid_n = int(self.traj.duration / h) + 2
         if abs(t - k * h) < 1e-7 and 0 <= k < grid_n:
             if self._grid is None or not self._grid_k0 <= k < self._grid_k0 + GRID_CHUNK:
-                self._grid_k0 = k
-                self._grid = self.traj.sample_many(np.arange(k, min(k + GRID_CHUNK, grid_n)) * h)
+                # from a little before: the reference a lead ahead (_feedforward) and the one
+                # for now then share a chunk
+                self._grid_k0 = k0 = max(k - GRID_CHUNK // 8, 0)
+                self._grid = self.traj.sample_many(np.arange(k0, min(k0 + GRID_CHUNK, grid_n))
+                                                   * h)
             pos, vel, acc, yaw, yaw_rate = self._grid
             i = k - self._grid_k0
             return Reference(pos[i], vel[i], acc[i], float(yaw[i]), float(yaw_rate[i]))
@@ -711,6 +726,21 @@ class Flight(Preflight, GroundPhases, Failsafes):
         reference it flies to is taken there."""
         age = self.ctrl.sample_age(s.age)
         return age if age == age else 0.0
+
+    def _feedforward(self, rc, t):
+        """``rc``, the reference for mission time ``t``, with the acceleration fed forward taken
+        where the command will act: per axis ``feedforward_lead`` later (the input lag), plus
+        the change of the drag along the reference by then (:attr:`PositionController.drag`)."""
+        lead = self.ctrl.feedforward_lead
+        if not np.any(lead > 0.0):
+            return rc
+        drag = self.ctrl.drag
+        acc = np.array(rc.acc, dtype=float)
+        for i in range(3):
+            if lead[i] > 0.0:
+                ahead = self._reference(t + float(lead[i]))
+                acc[i] = ahead.acc[i] + drag[i] * (ahead.vel[i] - rc.vel[i])
+        return Reference(rc.pos, rc.vel, acc, rc.yaw, rc.yaw_rate)
 
     def _control_step(self, s, r, hold=False):
         """One control step on sample ``s`` towards reference ``r`` (for the time the
@@ -740,6 +770,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         r = self._reference(t)  # the sample's: what its error is scored against
         lead = self._lead(s)
         rc = r if lead == 0.0 else self._reference(t + lead)
+        rc = self._feedforward(rc, t + lead)
         if self._yaw_offset != 0.0:
             step = YAW_RATE * (s.dt if s.dt is not None else self.h)
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))

@@ -306,6 +306,12 @@ def observer_lag(rec, spec):
     return tuple(max(float(x) - age, 0.0) for x in rec["input_lag"])
 
 
+def observer_drag(rec):
+    """The linear drag (1/s per axis) of an identification for the observers' model (``drag:
+    auto``): the fit's ``c``, none where it came out negative."""
+    return tuple(max(float(rec["axes"][a]["drag_per_s"]), 0.0) for a in AXES)
+
+
 def needs_identification(spec, kind=None):
     """Whether flying ``spec`` as ``kind`` needs the input model identified first."""
     kind = kind or spec.kind
@@ -328,7 +334,8 @@ def with_identified(mission, kind=None, seed=None):
     kind = kind or spec.kind
     # the gains the flight resolves once it has identified (the defaults slowed to keep their
     # margin, where the spec gives none), then the model scaled (a robustness study's error)
-    gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec))
+    gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec),
+                          drag=observer_drag(rec))
     gains["input_lag"] = tuple(mission.input_model_scale * x for x in gains["input_lag"])
     m = copy.copy(mission)
     m.controller = dataclasses.replace(spec, kind=kind, gains=gains)
@@ -368,7 +375,8 @@ def model_yaml(rec, source):
                          f"63 % time {f['lag_s']:.4f} s, gain {f['gain']:.3f}, drag "
                          f"{f['drag_per_s']:.3f} /s, R2 {f['r2']:.4f}")
     lines += ["controller:",
-              "  input_lag: [" + ", ".join(f"{x:.4f}" for x in rec["input_lag"]) + "]"]
+              "  input_lag: [" + ", ".join(f"{x:.4f}" for x in rec["input_lag"]) + "]",
+              "  drag: [" + ", ".join(f"{x:.4f}" for x in observer_drag(rec)) + "]"]
     return "\n".join(lines) + "\n"
 
 

@@ -488,6 +488,17 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         now = times[:rows_max] + ((at[:rows_max] - got[:rows_max]) * h if latency < 0.0
                                   else latency)
         cref = _references(traj, now, h)
+    lead = ctrl.feedforward_lead
+    if np.any(lead > 0.0):
+        # the acceleration fed forward: the reference's where the command will act
+        # (feedforward_acceleration, as the flight computes it)
+        cref = cref.copy()
+        base = times[:rows_max] if latency != latency else now
+        drag = ctrl.drag
+        for i in range(3):
+            if lead[i] > 0.0:
+                ahead = _references(traj, base + lead[i], h)
+                cref[:, 6 + i] = ahead[:, 6 + i] + drag[i] * (ahead[:, 3 + i] - cref[:, 3 + i])
     log = np.full((rows_max, NLOG), math.nan)
     sf = mission.safety
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,

@@ -382,6 +382,21 @@ def _read_controller(sec, kinds=None):
             c.gains["input_lag"] = sec.string("input_lag")
         else:
             c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
+    if sec.has("drag"):
+        # the vehicle's linear drag (1/s per axis) in the observers' model: auto (identified
+        # with input_lag: auto, the default then), numbers, or 0 (none)
+        if sec.data["drag"] == "auto":
+            c.gains["drag"] = sec.string("drag")
+            sec.check("drag", c.gains.get("input_lag") == "auto",
+                      "drag: auto is identified with the input model: give input_lag: auto, "
+                      "or the drag in 1/s")
+        else:
+            c.gains["drag"] = tuple(float(x) for x in
+                                    sec.vector("drag", 3, scalar_ok=True, ge=0.0))
+            sec.check("drag", max(c.gains["drag"]) <= 20.0,
+                      f"must be at most 20 /s (got {max(c.gains['drag']):g})")
+        sec.check("drag", c.kind in ("ladrc", "adrc"),
+                  "the drag is part of the observers' model: ladrc and adrc only")
     if sec.has("latency"):
         # how old the samples are, for the observers to compensate: auto (measured), seconds,
         # or 0 (not compensated)

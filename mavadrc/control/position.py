@@ -23,7 +23,8 @@ IN_ALPHA = 0  # 1 - exp(-h/tau) at the nominal step (1: no lag)
 IN_STATE = 1  # the lag's output: the acceleration the observer is fed
 IN_TAU = 2  # the lag's time constant (s; 0: none)
 IN_DIFF = 3  # last command minus the lag's output before it (to redo the last advance)
-NIN = 4
+IN_DRAG = 4  # the vehicle's linear drag (1/s; 0: none): a = u - drag * v + disturbance
+NIN = 5
 
 
 @jit
@@ -72,14 +73,19 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
             da = (-math.expm1(-hs / tau) - IN[i, IN_ALPHA]) * IN[i, IN_DIFF]
             IN[i, IN_STATE] += da
             K.set_applied_input(S[i], S[i, K.S_U] + da)
+    # the drag the model knows is fed forward along the reference (the observers see it as
+    # part of their input: their z3 is what is left)
+    f0 = racc[0] + IN[0, IN_DRAG] * rvel[0]
+    f1 = racc[1] + IN[1, IN_DRAG] * rvel[1]
+    f2 = racc[2] + IN[2, IN_DRAG] * rvel[2]
     if aged:
-        a0 = K.channel_update_aged(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh, age)
-        a1 = K.channel_update_aged(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh, age)
-        a2 = K.channel_update_aged(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh, age)
+        a0 = K.channel_update_aged(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], f0, hh, age)
+        a1 = K.channel_update_aged(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], f1, hh, age)
+        a2 = K.channel_update_aged(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], f2, hh, age)
     else:
-        a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], racc[0], hh)
-        a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], racc[1], hh)
-        a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], racc[2], hh)
+        a0 = K.channel_update(S[0], P[0], pos[0], vel[0], rpos[0], rvel[0], f0, hh)
+        a1 = K.channel_update(S[1], P[1], pos[1], vel[1], rpos[1], rvel[1], f1, hh)
+        a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], f2, hh)
     G.accel_to_attitude(a0, a1, a2, yaw, M, out)
     for i in range(3):
         # the observers' input: the limited command through the input model (a first-order
@@ -87,7 +93,8 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
         diff = out[G.O_ACC + i] - IN[i, IN_STATE]
         IN[i, IN_DIFF] = diff
         IN[i, IN_STATE] += IN[i, IN_ALPHA] * diff
-        K.set_applied_input(S[i], IN[i, IN_STATE])
+        # and the drag along the reference, fed forward above, as known
+        K.set_applied_input(S[i], IN[i, IN_STATE] - IN[i, IN_DRAG] * rvel[i])
     out[G.NO] = a0
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
@@ -257,6 +264,16 @@ class PositionController:
                     raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
+        drag = gains.pop("drag", None)
+        if drag is not None:
+            if kind not in ("ladrc", "adrc"):
+                raise ValueError("drag is part of the observers' model: it applies to the "
+                                 f"'ladrc' and 'adrc' kinds, not {kind!r}")
+            for i in range(3):
+                c = float(_axis(drag, i, "drag"))
+                if not (math.isfinite(c) and 0.0 <= c <= 20.0):
+                    raise ValueError(f"drag must be within 0-20 /s (got {drag!r})")
+                self._IN[i, IN_DRAG] = c
         if thrust_estimate_tau is not None and kind not in ("ladrc", "adrc"):
             raise ValueError("the thrust is learnt from the vertical observer: thrust_estimate_tau "
                              f"applies to the 'ladrc' and 'adrc' kinds, not {kind!r}")
@@ -276,6 +293,10 @@ class PositionController:
                 self._P[:, K.P_R0] = authority(self._M)
             if "h0" not in gains:
                 self._P[:, K.P_H0] = np.maximum(self._P[:, K.P_H1], self._P[:, K.P_H])
+            if self._P[0, K.P_TD] != 0.0:
+                # the law tracks the TD's profile and feeds forward its fh, not the reference's
+                # motion: the drag along the reference is not fed forward, so not modelled
+                self._IN[:, IN_DRAG] = 0.0
         self._h = float(self._P[0, K.P_H])
         self._S = np.zeros((3, K.NSD))
         self._out = np.zeros(G.NO + 3)
@@ -401,6 +422,27 @@ class PositionController:
         """The normalized thrust that holds a hover as the controller now takes it: the figure
         told, or what it has learnt in flight (``thrust_estimate_tau``)."""
         return float(self._M[G.M_G] * self._M[G.M_TPA])
+
+    @property
+    def feedforward_lead(self):
+        """(3,) s per axis: how far ahead the reference's acceleration is fed forward, the
+        observers' input lag (``input_lag``): a command acts that late, so the acceleration
+        asked for now is the one the reference has then (to first order the inverse of the lag,
+        a + lag * da/dt).  0 without an input model, and for ADRC with its TD (which feeds
+        forward its own acceleration)."""
+        lead = self._IN[:, IN_TAU].copy()
+        if self.kind == "adrc" and self._P[0, K.P_TD] != 0.0:
+            lead[:] = 0.0
+        return lead
+
+    @property
+    def drag(self):
+        """(3,) 1/s per axis: the vehicle's linear drag as the controller models it (``drag``; 0:
+        none; off for ADRC with its TD): the drag along the reference velocity is fed forward
+        and the observers take it as a known input, so their z3 keeps the rest (the wind, the
+        drag of the tracking error).  The drag of the measured velocity is not modelled: the
+        loop stays the one its gains and delay margin were designed for."""
+        return self._IN[:, IN_DRAG].copy()
 
     @property
     def td(self):
