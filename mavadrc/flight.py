@@ -52,7 +52,7 @@ from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE, THRUST_ESTIMATE_S
 from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
-                       observer_drag, observer_lag, summary_line)
+                       design_lag, observer_drag, observer_lag, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -116,14 +116,16 @@ def identification_gains():
 
 
 def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None,
-                  drag=None):
+                  drag=None, designed_for=None):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
     that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
     ``input_lag``), the observer's bandwidth derived from the controller's where only that is
     given, and ``input_lag: auto`` replaced by the lags ``identified`` on the vehicle
     (:mod:`mavadrc.identify`), ``drag: auto`` (its default with ``input_lag: auto``) by the
-    ``drag`` identified with them (None: none).  Given as a mission's controller, they fly the same controller
+    ``drag`` identified with them (None: none).  The mission's own ``wc`` and ``wo`` with
+    ``input_lag: auto`` are slowed by :func:`scale_to_vehicle` when the vehicle identified is
+    slower than the one they were chosen for (``designed_for``: its lags; None: not known).  Given as a mission's controller, they fly the same controller
     again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
     given = dict(spec.gains) if kind == spec.kind else {}
@@ -146,6 +148,10 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     if identified is not None and gains.get("drag") == "auto":
         # None: the identification gave lags only (a caller's), no drag to model
         gains["drag"] = (0.0,) * 3 if drag is None else tuple(float(x) for x in drag)
+    if gains.get("input_lag") == "auto" and identified is not None and designed_for is not None \
+            and kind in ("ladrc", "adrc") and ("wc" in given or "wo" in given):
+        gains = scale_to_vehicle(gains, tuple(float(x) for x in identified),
+                                 tuple(float(x) for x in designed_for))
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
             and "wc" not in given and "wo" not in given:
         # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
@@ -167,6 +173,40 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
 #: of the lag, swung +-13 deg; wc 1.5 (50 %) 4-5 deg; wc 1.24 (64 %) about 4 deg; this share
 #: gives it wc 1.09 / wo 5.45.  The bundled vehicles (0.125 s) get wc 2.0-2.2.
 MARGIN_SHARE = 0.75
+
+
+#: a vehicle identified slower than the one a mission's gains were chosen for by more than the
+#: identification's accuracy (tested within 15 %) flies them slowed (scale_to_vehicle)
+SCALE_TOLERANCE = 1.15
+
+
+def scale_factors(lag, design):
+    """Per axis, how much :func:`scale_to_vehicle` slows a mission's gains chosen for a vehicle
+    whose lags are ``design`` (s) on one whose lags are ``lag``: horizontally ``design / lag``
+    where ``lag`` exceeds ``design`` by more than :data:`SCALE_TOLERANCE`, else 1.  The
+    vertical loop is left as given: it answers through the thrust, in 0.01-0.1 s on every
+    vehicle flown (the x500's 0.02 s against PX4 SIH's 0.05-0.1 would slow it 2-5x for a
+    margin it keeps anyway)."""
+    f = tuple(round(min(design[i] / lag[i], 1.0), 3)
+              if design[i] > 0.0 and lag[i] > SCALE_TOLERANCE * design[i] else 1.0
+              for i in range(2))
+    return f + (1.0,)
+
+
+def scale_to_vehicle(gains, lag, design):
+    """The mission's ``wc`` and ``wo`` for a vehicle whose lags (s per axis, identified) are
+    ``lag``, chosen for one whose lags are ``design``: both bandwidths times
+    :func:`scale_factors`.  The loop is then the one designed, in slower time: the same damping
+    and the same delay margin as a share of the lag (a loop whose gains and plant lags scale
+    together is the same loop, time stretched).  Never faster than given."""
+    f = scale_factors(lag, design)
+    if all(x == 1.0 for x in f):
+        return gains
+    out = dict(gains)
+    for key in ("wc", "wo"):
+        if key in out:
+            out[key] = tuple(round(f[i] * float(out[key][i]), 3) for i in range(3))
+    return out
 
 
 def fit_to_margin(spec, kind, gains, lag):
@@ -321,6 +361,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         # input_lag: auto: the fit of the identify segment (mavadrc.identify); until it is
         # made, the safe default LADRC flies
         self.identification = None
+        self.gains_scaled = None  # scale_to_vehicle's factors, when they slowed the gains
         self._id_windows = None
         self._id_span = None  # (first window's start, last window's end), mission time
         self._id_data = []
@@ -359,6 +400,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._yaw_offset = 0.0
         self._grid = None
         self._grid_k0 = 0
+        self._design = None  # (the lags the mission's gains were chosen for,), once known
         self._failsafe = None  # the action in force (supervisor constants)
         self._failsafe_step = None  # "hold" or "land": the mode asked for now
         self._failsafe_wall = 0.0
@@ -440,7 +482,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 self.m.controller, self.kind,
                 identified=(observer_lag(self.identification, self.m.controller)
                             if self.identification else None),
-                drag=observer_drag(self.identification) if self.identification else None)
+                drag=observer_drag(self.identification) if self.identification else None,
+                designed_for=self._design_lag() if self.identification else None)
         return self.kind, self.gains
 
     def _make_controller(self, hover):
@@ -496,6 +539,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._id_job = pool.submit(self._identify_fit, d)
         pool.shutdown(wait=False)
 
+    def _design_lag(self):
+        """The lags of the vehicle the mission's own gains were chosen for (its vehicle file's
+        bundled model, identified in process once; None: the mission gives no gains of its
+        own, or names no vehicle file)."""
+        if self._design is None:
+            spec = self.m.controller
+            own = self.kind == spec.kind and ("wc" in spec.gains or "wo" in spec.gains)
+            self._design = (design_lag(self.m),) if own else (None,)
+        return self._design[0]
+
     def _identify_fit(self, d):
         """The fit of the identify segment's samples ``d``, and, if it holds, the mission's
         controller made with it: (record, controller or None, gains, delay margin)."""
@@ -506,7 +559,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
                               identified=observer_lag(rec, self.m.controller),
-                              drag=observer_drag(rec))
+                              drag=observer_drag(rec), designed_for=self._design_lag())
         ctrl, margin = self._build(self.hover, self.kind, gains)
         return rec, ctrl, gains, margin
 
@@ -526,6 +579,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if "wc" in gains and "wo" in gains:
             bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
                   f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
+        design = self._design_lag()
+        if design is not None:
+            f = scale_factors(gains["input_lag"], design)
+            if any(x < 1.0 for x in f):
+                self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
+                                     "factor": list(f)}
+                name = getattr(self.m.vehicle, "name", self.m.vehicle)
+                self.say(f"the mission's gains were chosen for a vehicle answering in "
+                         f"{design[0]:.3f} s horizontally ({name}); this one takes "
+                         f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{min(f):.2f}")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
@@ -974,6 +1037,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
                                               if self.ctrl.learns_thrust else None)
         if self.identification is not None:
             summary["identification"] = self.identification
+            if self.gains_scaled is not None:
+                # the mission's own gains slowed for a vehicle slower than theirs
+                summary["gains_scaled"] = self.gains_scaled
         if self._attitudes:
             a = np.asarray(self._attitudes)
             osc = attitude_oscillation(a[:, 0], a[:, 1], a[:, 2])

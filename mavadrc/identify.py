@@ -306,6 +306,23 @@ def observer_lag(rec, spec):
     return tuple(max(float(x) - age, 0.0) for x in rec["input_lag"])
 
 
+def design_lag(mission):
+    """The observers' lags (s per axis) of the vehicle a mission's gains were chosen for: its
+    vehicle file's bundled model, identified in process as a flight identifies (calm air, no
+    link, fresh samples; cached per vehicle); None when the mission names no vehicle file or
+    the fit fails."""
+    import dataclasses
+    if mission.vehicle is None:
+        return None
+    m = dataclasses.replace(mission, link=None, sensor_latency_s=0.0, noise=False)
+    rec = identify_inprocess(m, 0)
+    if "input_lag" not in rec:
+        return None
+    return observer_lag(rec, dataclasses.replace(mission.controller,
+                                                 gains={**mission.controller.gains,
+                                                        "latency": 0.0}))
+
+
 def observer_drag(rec):
     """The linear drag (1/s per axis) of an identification for the observers' model (``drag:
     auto``): the fit's ``c``, none where it came out negative."""
