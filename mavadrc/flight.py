@@ -150,8 +150,8 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
         gains["drag"] = (0.0,) * 3 if drag is None else tuple(float(x) for x in drag)
     if gains.get("input_lag") == "auto" and identified is not None and designed_for is not None \
             and kind in ("ladrc", "adrc") and ("wc" in given or "wo" in given):
-        gains = scale_to_vehicle(gains, tuple(float(x) for x in identified),
-                                 tuple(float(x) for x in designed_for))
+        gains, _ = scale_to_vehicle(spec, kind, gains, tuple(float(x) for x in identified),
+                                    tuple(float(x) for x in designed_for))
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
             and "wc" not in given and "wo" not in given:
         # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
@@ -176,37 +176,48 @@ MARGIN_SHARE = 0.75
 
 
 #: a vehicle identified slower than the one a mission's gains were chosen for by more than the
-#: identification's accuracy (tested within 15 %) flies them slowed (scale_to_vehicle)
+#: identification's accuracy (tested within 15 %) may fly them slowed (scale_to_vehicle)
 SCALE_TOLERANCE = 1.15
+#: the share of the identified horizontal lag a mission's own gains keep as delay margin on a
+#: vehicle slower than theirs, when they kept at least that on their own.  Calibrated on PX4 SIH
+#: (0.24-0.27 s): x500_gusts' wc 2 keeps 36-38 % there and swung 2.3-2.4 deg; the spiral's wc 4
+#: (32 % on the Crazyflie) kept 11 % and swung 8.9 deg at the tilt limit, and at half (37 %)
+#: 2.4 deg.
+MISSION_MARGIN_SHARE = 0.35
 
 
-def scale_factors(lag, design):
-    """Per axis, how much :func:`scale_to_vehicle` slows a mission's gains chosen for a vehicle
-    whose lags are ``design`` (s) on one whose lags are ``lag``: horizontally ``design / lag``
-    where ``lag`` exceeds ``design`` by more than :data:`SCALE_TOLERANCE`, else 1.  The
-    vertical loop is left as given: it answers through the thrust, in 0.01-0.1 s on every
-    vehicle flown (the x500's 0.02 s against PX4 SIH's 0.05-0.1 would slow it 2-5x for a
-    margin it keeps anyway)."""
-    f = tuple(round(min(design[i] / lag[i], 1.0), 3)
-              if design[i] > 0.0 and lag[i] > SCALE_TOLERANCE * design[i] else 1.0
-              for i in range(2))
-    return f + (1.0,)
+def scale_to_vehicle(spec, kind, gains, lag, design):
+    """The mission's ``wc`` and ``wo`` (chosen for a vehicle whose lags are ``design``, s per
+    axis) for one whose lags are ``lag``.  Where the horizontal lag exceeds the design's by more
+    than :data:`SCALE_TOLERANCE`, the gains must keep, as a share of the lag, the delay margin
+    they had on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`; if they do not, the
+    horizontal ``wc`` and ``wo`` are scaled down by one factor until they do (the loop designed,
+    in slower time: a loop whose gains and plant lag scale together is the same loop, time
+    stretched, with the same margin as a share of the lag).  Never faster than given; the
+    vertical loop, which answers through the thrust in 0.01-0.1 s on every vehicle flown, is
+    left as given.  Returns (gains, the horizontal factor: 1 when left as given)."""
+    slow, quick = max(lag[0], lag[1]), max(design[0], design[1])
+    if not (quick > 0.0 and slow > SCALE_TOLERANCE * quick):
+        return gains, 1.0
 
+    def margin(f, plant):
+        g = {**gains, "input_lag": tuple(plant),
+             "wc": tuple(round(f * float(w), 3) if i < 2 else float(w)
+                         for i, w in enumerate(gains["wc"])),
+             "wo": tuple(round(f * float(w), 3) if i < 2 else float(w)
+                         for i, w in enumerate(gains["wo"]))}
+        return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g)), g
 
-def scale_to_vehicle(gains, lag, design):
-    """The mission's ``wc`` and ``wo`` for a vehicle whose lags (s per axis, identified) are
-    ``lag``, chosen for one whose lags are ``design``: both bandwidths times
-    :func:`scale_factors`.  The loop is then the one designed, in slower time: the same damping
-    and the same delay margin as a share of the lag (a loop whose gains and plant lags scale
-    together is the same loop, time stretched).  Never faster than given."""
-    f = scale_factors(lag, design)
-    if all(x == 1.0 for x in f):
-        return gains
-    out = dict(gains)
-    for key in ("wc", "wo"):
-        if key in out:
-            out[key] = tuple(round(f[i] * float(out[key][i]), 3) for i in range(3))
-    return out
+    need = min(margin(1.0, design)[0] / quick, MISSION_MARGIN_SHARE) * slow
+    if margin(1.0, lag)[0] >= need:
+        return gains, 1.0
+    lo, hi = 0.05, 1.0
+    while hi - lo > 0.02:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if margin(mid, lag)[0] >= need else (lo, mid)
+    f = round(lo, 3)
+    g = margin(f, lag)[1]
+    return {**g, "input_lag": gains["input_lag"]}, f
 
 
 def fit_to_margin(spec, kind, gains, lag):
@@ -580,15 +591,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
             bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
                   f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
         design = self._design_lag()
-        if design is not None:
-            f = scale_factors(gains["input_lag"], design)
-            if any(x < 1.0 for x in f):
+        given = self.m.controller.gains.get("wc")
+        if design is not None and given is not None and "wc" in gains:
+            f = float(gains["wc"][0]) / float(given[0])
+            if f < 1.0:
                 self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
-                                     "factor": list(f)}
+                                     "factor": round(f, 3)}
                 name = getattr(self.m.vehicle, "name", self.m.vehicle)
                 self.say(f"the mission's gains were chosen for a vehicle answering in "
                          f"{design[0]:.3f} s horizontally ({name}); this one takes "
-                         f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{min(f):.2f}")
+                         f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{f:.2f}, to "
+                         "keep their delay margin")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"

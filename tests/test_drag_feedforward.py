@@ -220,23 +220,34 @@ def test_the_fast_path_and_the_lockstep_wire_lead_alike(tmp_path):
 
 # --- the mission's own gains on a vehicle slower than theirs -------------------------------------
 
-def test_the_mission_gains_are_slowed_by_the_ratio_of_the_lags():
-    """thesis_spiral_wind's wc 4 / wo 23.9 were chosen for the Crazyflie (0.125 s): on a
-    vehicle answering in 0.25 s they fly at half (horizontally), within the identification's
-    15 % they fly as given, and a faster vehicle never makes them faster."""
-    from mavadrc.flight import scale_factors
+def test_the_mission_gains_keep_their_margin_on_a_slower_vehicle():
+    """thesis_spiral_wind's wc 4 / wo 23.9 keep 32 % of the Crazyflie's lag (0.125 s) as delay
+    margin: on a vehicle answering in 0.25 s they would keep 12 %, and are slowed
+    (horizontally) until they keep 32 % again, about half; x500_gusts' wc 2 keeps 81 % on the
+    x500 and still 36 % (over MISSION_MARGIN_SHARE) at 0.25 s: as given.  Within the
+    identification's 15 % nothing changes, and a faster vehicle never makes them faster."""
+    from mavadrc.flight import MISSION_MARGIN_SHARE, make_controller
     from mavadrc.identify import design_lag
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
     design = design_lag(m)
     assert design[0] == pytest.approx(0.125, rel=0.05)
     slow = resolve_gains(m.controller, identified=(0.25, 0.25, 0.1), designed_for=design)
-    assert slow["wc"][0] == pytest.approx(4.0 * design[0] / 0.25, abs=0.01)
-    assert slow["wo"][1] == pytest.approx(23.9 * design[0] / 0.25, abs=0.05)
+    f = slow["wc"][0] / 4.0
+    assert 0.4 < f < 0.6
+    assert slow["wo"][1] == pytest.approx(23.9 * f, abs=0.01)
     assert slow["wc"][2] == 4.25 and slow["wo"][2] == 25.4  # the vertical loop as given
+    margin = delay_margin(make_controller(m.controller, hover_thrust=0.5, gains=slow))
+    own = delay_margin(make_controller(m.controller, hover_thrust=0.5, gains=resolve_gains(
+        m.controller, identified=design)))
+    assert own / design[0] < MISSION_MARGIN_SHARE
+    assert margin / 0.25 >= own / design[0] - 1e-9
     for lag in (design[0] * 1.1, 0.08):
         same = resolve_gains(m.controller, identified=(lag, lag, 0.05), designed_for=design)
         assert tuple(same["wc"]) == (4.0, 4.0, 4.25)
-    assert scale_factors((0.3, 0.3, 0.3), (0.1, 0.1, 0.05)) == (0.333, 0.333, 1.0)
+    x500 = load_mission("configs/missions/x500_gusts.yaml")
+    kept = resolve_gains(x500.controller, identified=(0.25, 0.25, 0.08),
+                         designed_for=design_lag(x500))
+    assert tuple(kept["wc"]) == (2.0, 2.0, 2.5)
     # gains the mission does not give (the defaults) keep their own rule (fit_to_margin)
     spec = dataclasses.replace(m.controller, gains={"input_lag": "auto"})
     assert resolve_gains(spec, identified=(0.25, 0.25, 0.05), designed_for=design) == \
@@ -259,10 +270,10 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert "the mission's gains were chosen for a vehicle answering in" in out
     folder = next(p for p in Path(tmp_path).iterdir() if p.is_dir())
     s = json.loads((folder / "summary.json").read_text())
-    f = s["gains_scaled"]["factor"][0]
+    f = s["gains_scaled"]["factor"]
     lag = s["identification"]["input_lag"][0]
     assert 0.22 < lag < 0.32
-    assert f == pytest.approx(s["gains_scaled"]["design_lag_s"][0] / lag, abs=0.002)
+    assert 0.3 < f < 0.7
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * f, abs=0.01)
     assert s["attitude_oscillation"]["amplitude_deg"] < 4.0
     assert s["after_settle"]["max_error_m"] < MAX_SLOWED_SPIRAL_M
