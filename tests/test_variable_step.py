@@ -123,8 +123,10 @@ def _old_channel_update(s, p, y, ydot, r, rdot, rddot):
             _old_td_step(s, p, r)
         else:
             s[K.S_V1], s[K.S_V2] = r, rdot
-        e1 = s[K.S_V1] - s[K.S_Z1]
-        e2 = s[K.S_V2] - s[K.S_Z2]
+        # the NLESO's estimate is one step ahead of the sample: so is the reference compared
+        hn = p[K.P_H]
+        e1 = s[K.S_V1] + hn * s[K.S_V2] + 0.5 * hn * hn * rddot - s[K.S_Z1]
+        e2 = s[K.S_V2] + hn * rddot - s[K.S_Z2]
         if p[K.P_LAW] == K.LAW_FHAN:
             u0 = -fhan(e1, p[K.P_C] * e2, p[K.P_R], p[K.P_H1]) + rddot
         else:

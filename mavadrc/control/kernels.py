@@ -532,7 +532,14 @@ def _law(s, p, y, ydot, r, rdot, rddot, h):
     kind = p[P_KIND]
     b0 = p[P_B0]
     if kind == KIND_LADRC:
-        u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
+        if p[P_OBS] == OBS_EULER:
+            # the Euler LESO's estimate is one nominal step ahead of the sample: so is the
+            # reference it is compared with (as Han's NLESO below)
+            hn = p[P_H]
+            u0 = (p[P_KP] * (r + hn * rdot + 0.5 * hn * hn * rddot - s[S_Z1])
+                  + p[P_KD] * (rdot + hn * rddot - s[S_Z2]) + rddot)
+        else:
+            u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_HAN:
         if p[P_TD] != 0.0:
@@ -543,8 +550,13 @@ def _law(s, p, y, ydot, r, rdot, rddot, h):
             s[S_V1] = v1 = r
             s[S_V2] = v2 = rdot
             acc = rddot
-        e1 = v1 - s[S_Z1]
-        e2 = v2 - s[S_Z2]
+        # Han's NLESO (forward Euler) leaves its estimate one nominal step ahead of the sample
+        # (z1 += h (z2 - beta01 e)): the reference it is compared with is taken there too.
+        # Compared with the sample's, every step read a moving reference h behind: an error of
+        # speed x h (0.1 m at 5 m/s and 50 Hz)
+        hn = p[P_H]
+        e1 = v1 + hn * v2 + 0.5 * hn * hn * acc - s[S_Z1]
+        e2 = v2 + hn * acc - s[S_Z2]
         if p[P_LAW] == LAW_FHAN:
             u0 = -fhan(e1, p[P_C] * e2, p[P_R], p[P_H1]) + acc
         else:
