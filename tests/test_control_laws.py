@@ -547,3 +547,22 @@ def test_linear_adrc_tracks_a_ramp_without_a_one_step_lag(disc):
         y, yd = y + h * yd + 0.5 * h * h * u, yd + h * u
         errs.append(v * (t + h) - y)
     assert np.abs(np.array(errs[-100:])).max() < 0.01 * v * h
+
+
+def test_erratum_printed_timing_trails_a_ramp():
+    """The printed law's timing, the NLESO's estimate compared with the sample's reference
+    (written here around the project's HanESO): on the same 5 m/s ramp at 50 Hz it settles a
+    whole speed x step (0.1 m) behind."""
+    h, v = 0.02, 5.0
+    obs = HanESO(h=h, b0=1.0, beta=(12.0, 48.0, 64.0))
+    y, yd, u = 0.0, v, 0.0
+    obs.reset(y)
+    errs = []
+    for k in range(int(round(8.0 / h))):
+        t = k * h
+        z1, z2, z3 = obs.update(y, u)
+        u = -fhan(v * t - z1, 1.0 * (v - z2), 100.0, 0.5) - z3
+        y, yd = y + h * yd + 0.5 * h * h * u, yd + h * u
+        errs.append(v * (t + h) - y)
+    tail = np.array(errs[-50:])
+    assert np.all(np.abs(tail - v * h) < 0.05 * v * h)
