@@ -812,10 +812,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return rc
         drag = self.ctrl.drag
         acc = np.array(rc.acc, dtype=float)
+        ahead = {}  # one sample per distinct lead (north and east share theirs)
         for i in range(3):
             if lead[i] > 0.0:
-                ahead = self._reference(t + float(lead[i]))
-                acc[i] = ahead.acc[i] + drag[i] * (ahead.vel[i] - rc.vel[i])
+                a = ahead.get(lead[i])
+                if a is None:
+                    a = ahead[lead[i]] = self._reference(t + float(lead[i]))
+                acc[i] = a.acc[i] + drag[i] * (a.vel[i] - rc.vel[i])
         return Reference(rc.pos, rc.vel, acc, rc.yaw, rc.yaw_rate)
 
     def _control_step(self, s, r, hold=False):

@@ -165,6 +165,21 @@ def position_hold_disturbance(S):
     K.hold_disturbance(S[2])
 
 
+def _model_axes(value, kind, name, unit, most, what):
+    """A per-axis figure of the observers' model (``input_lag``, ``drag``) checked: None when
+    not given, else three finite numbers in 0..``most``; only the observer kinds take one."""
+    if value is None:
+        return None
+    if kind not in ("ladrc", "adrc"):
+        raise ValueError(f"{name} {what}: it applies to the 'ladrc' and 'adrc' kinds, not "
+                         f"{kind!r}")
+    out = [float(_axis(value, i, name)) for i in range(3)]
+    if not all(math.isfinite(x) and 0.0 <= x <= most for x in out):
+        bound = f">= 0 {unit}" if most == math.inf else f"within 0-{most:g} {unit}"
+        raise ValueError(f"{name} must be {bound} (got {value!r})")
+    return out
+
+
 def _axis(value, i, name):
     """A per-axis setting: a scalar for all axes, or a sequence of three (x, y, z).
 
@@ -251,29 +266,18 @@ class PositionController:
                  latency=None, thrust_estimate_tau=None, **gains):
         self.kind = kind
         self.latency = check_latency(latency, kind)
-        lag = gains.pop("input_lag", None)
         self._IN = np.zeros((3, NIN))
         self._IN[:, IN_ALPHA] = 1.0
+        lag = _model_axes(gains.pop("input_lag", None), kind, "input_lag", "s", math.inf,
+                          "models the observers' input")
         if lag is not None:
-            if kind not in ("ladrc", "adrc"):
-                raise ValueError("input_lag models the observers' input: it applies to the "
-                                 f"'ladrc' and 'adrc' kinds, not {kind!r}")
-            for i in range(3):
-                tau = float(_axis(lag, i, "input_lag"))
-                if not (math.isfinite(tau) and tau >= 0.0):
-                    raise ValueError(f"input_lag must be >= 0 s (got {lag!r})")
+            for i, tau in enumerate(lag):
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
-        drag = gains.pop("drag", None)
+        drag = _model_axes(gains.pop("drag", None), kind, "drag", "/s", 20.0,
+                           "is part of the observers' model")
         if drag is not None:
-            if kind not in ("ladrc", "adrc"):
-                raise ValueError("drag is part of the observers' model: it applies to the "
-                                 f"'ladrc' and 'adrc' kinds, not {kind!r}")
-            for i in range(3):
-                c = float(_axis(drag, i, "drag"))
-                if not (math.isfinite(c) and 0.0 <= c <= 20.0):
-                    raise ValueError(f"drag must be within 0-20 /s (got {drag!r})")
-                self._IN[i, IN_DRAG] = c
+            self._IN[:, IN_DRAG] = drag
         if thrust_estimate_tau is not None and kind not in ("ladrc", "adrc"):
             raise ValueError("the thrust is learnt from the vertical observer: thrust_estimate_tau "
                              f"applies to the 'ladrc' and 'adrc' kinds, not {kind!r}")
