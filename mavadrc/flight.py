@@ -200,24 +200,24 @@ def scale_to_vehicle(spec, kind, gains, lag, design):
     if not (quick > 0.0 and slow > SCALE_TOLERANCE * quick):
         return gains, 1.0
 
-    def margin(f, plant):
-        g = {**gains, "input_lag": tuple(plant),
-             "wc": tuple(round(f * float(w), 3) if i < 2 else float(w)
-                         for i, w in enumerate(gains["wc"])),
-             "wo": tuple(round(f * float(w), 3) if i < 2 else float(w)
-                         for i, w in enumerate(gains["wo"]))}
-        return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g)), g
+    def scaled(f):  # the horizontal wc and wo times f
+        return {**gains, **{key: tuple(round(f * float(w), 3) if i < 2 else float(w)
+                                       for i, w in enumerate(gains[key]))
+                            for key in ("wc", "wo")}}
 
-    need = min(margin(1.0, design)[0] / quick, MISSION_MARGIN_SHARE) * slow
-    if margin(1.0, lag)[0] >= need:
+    def margin(f, plant):
+        g = {**scaled(f), "input_lag": tuple(plant)}
+        return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
+
+    need = min(margin(1.0, design) / quick, MISSION_MARGIN_SHARE) * slow
+    if margin(1.0, lag) >= need:
         return gains, 1.0
     lo, hi = 0.05, 1.0
     while hi - lo > 0.02:
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if margin(mid, lag)[0] >= need else (lo, mid)
+        lo, hi = (mid, hi) if margin(mid, lag) >= need else (lo, mid)
     f = round(lo, 3)
-    g = margin(f, lag)[1]
-    return {**g, "input_lag": gains["input_lag"]}, f
+    return scaled(f), f
 
 
 def fit_to_margin(spec, kind, gains, lag):

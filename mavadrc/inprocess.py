@@ -490,15 +490,18 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         cref = _references(traj, now, h)
     lead = ctrl.feedforward_lead
     if np.any(lead > 0.0):
-        # the acceleration fed forward: the reference's where the command will act
-        # (feedforward_acceleration, as the flight computes it)
+        # the acceleration fed forward: the reference's where the command will act (as the
+        # flight's Flight._feedforward computes it), sampled once per distinct lead
         cref = cref.copy()
         base = times[:rows_max] if latency != latency else now
         drag = ctrl.drag
+        ahead = {}
         for i in range(3):
             if lead[i] > 0.0:
-                ahead = _references(traj, base + lead[i], h)
-                cref[:, 6 + i] = ahead[:, 6 + i] + drag[i] * (ahead[:, 3 + i] - cref[:, 3 + i])
+                if lead[i] not in ahead:
+                    ahead[lead[i]] = _references(traj, base + lead[i], h)
+                a = ahead[lead[i]]
+                cref[:, 6 + i] = a[:, 6 + i] + drag[i] * (a[:, 3 + i] - cref[:, 3 + i])
     log = np.full((rows_max, NLOG), math.nan)
     sf = mission.safety
     limits = np.array([*sf.geofence_north, *sf.geofence_east, sf.altitude_min, sf.altitude_max,
