@@ -194,33 +194,46 @@ class GroundPhases:
         q, thrust = self._control_step(s, rc)
         self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
         self._descent_history(s)
-        # settled: hardly moving vertically while the reference goes on down below it
-        settled = abs(s.vel[2]) < SETTLED_SPEED and pos[2] > s.pos[2] + 0.05
+        ground = self._ground_contact(s, pos[2], self._phase_wall)
+        if ground is not None:
+            return self._touched_down(s, thrust, ground)
+        bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
+        if tau > bound:
+            self._escalate("touchdown_timeout",
+                           f"touchdown not seen {bound:.0f} s into the final descent")
+
+    def _ground_contact(self, s, ref_z, since_wall):
+        """Whether the vehicle is on the ground while the reference (down ``ref_z``) goes on
+        below it: None if not, else whether the autopilot says so (ON_GROUND, told after
+        ``since_wall``) rather than the samples (hardly moving vertically for SETTLED_S with the
+        reference more than 5 cm under it)."""
+        settled = abs(s.vel[2]) < SETTLED_SPEED and ref_z > s.pos[2] + 0.05
         if settled:
             if self._settled_since is None:
                 self._settled_since = s.t
         else:
             self._settled_since = None
         ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND and \
-            self.landed_state_wall is not None and self.landed_state_wall > self._phase_wall
+            self.landed_state_wall is not None and self.landed_state_wall > since_wall
         if ground or (self._settled_since is not None and s.t - self._settled_since >= SETTLED_S):
-            self.touchdown_speed = touchdown_speed(self._descent)
-            self.touchdown_seen = True
-            self.ctrl.hold_disturbance()
-            self._cut_from = thrust
-            self.say(f"touchdown at {self.touchdown_speed:.2f} m/s "
-                     f"({'the autopilot says on the ground' if ground else 'settled'})")
-            if self.touchdown_speed > self.m.safety.max_touchdown_speed:
-                text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
-                        f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
-                self.say(f"warning: {text}")
-                self.warnings.append(text)
-            self._enter("cut", s)
-            return
-        bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
-        if tau > bound:
-            self._escalate("touchdown_timeout",
-                           f"touchdown not seen {bound:.0f} s into the final descent")
+            return bool(ground)
+        return None
+
+    def _touched_down(self, s, thrust, ground):
+        """Touchdown seen on sample ``s`` (the autopilot said so: ``ground``): judge its speed,
+        cut the thrust."""
+        self.touchdown_speed = touchdown_speed(self._descent)
+        self.touchdown_seen = True
+        self.ctrl.hold_disturbance()
+        self._cut_from = thrust
+        self.say(f"touchdown at {self.touchdown_speed:.2f} m/s "
+                 f"({'the autopilot says on the ground' if ground else 'settled'})")
+        if self.touchdown_speed > self.m.safety.max_touchdown_speed:
+            text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
+                    f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
+            self.say(f"warning: {text}")
+            self.warnings.append(text)
+        self._enter("cut", s)
 
     def _descent_history(self, s):
         self._descent.append((s.t, float(s.pos[2])))
