@@ -77,6 +77,8 @@ class EmbeddedVehicle:
             cmd += ["--noise"]
         if mission.sensor_latency_s:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
+        if mission.height_drift_mps:
+            cmd += ["--height-drift", repr(mission.height_drift_mps)]
         if math.isnan(mission.heading_deg):
             cmd += ["--heading", "random"]  # drawn from --seed, as the fast path draws it
         elif mission.heading_deg:

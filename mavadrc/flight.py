@@ -388,6 +388,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.identity = {}
         self.touchdown_speed = None
         self.touchdown_seen = False
+        self.touchdown_height = None  # the estimate's height above the takeoff spot there (m)
+        self._land_wall = None  # wall clock the final land segment began at
         self.disarm_confirmed = False
         self.warnings = []
         self._t0 = time.monotonic()
@@ -873,6 +875,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
         why = self.supervisor.breach(s, self.origin)
         if why is not None:
             return self._escalate("breach", why)
+        if self._in_final_land(t):
+            if self._land_wall is None:
+                self._land_wall = time.monotonic()
+            ground = self._ground_contact(s, r.pos[2], self._land_wall)
+            if ground is not None:
+                # on the ground before the reference: the height estimate has drifted; what
+                # follows is the ground's push, not tracking, and is not scored
+                self.recorder.unscore_from(self._contact_time() - self._mission_t0)
+                self.say(f"on the ground {self.origin[2] - s.pos[2]:.2f} m above the takeoff "
+                         "spot by the height estimate, before the land segment's end")
+                return self._touched_down(s, thrust, ground)
         if t >= self.traj.duration:
             if not self.m.ends_landed:
                 # the mission ends in the air (an experiment run): the autopilot lands it
@@ -983,6 +996,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
             for i, a in enumerate("xyz"):
                 self.link.named_float(s.t * 1000.0, f"z3_{a}", float(z3[i]))
 
+    def _in_final_land(self, t):
+        """Whether mission time ``t`` is in the mission's closing land segment."""
+        return (self.m.ends_landed and bool(self.phases) and self.phases[-1][1] == "land"
+                and t >= self.phases[-1][0])
+
     def _segment_name(self, t):
         name = self.phases[0][1] if self.phases else ""
         for t0, n in self.phases:
@@ -1022,6 +1040,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "landed": bool(landed and not aborted),
             "touchdown_seen": self.touchdown_seen,
             "touchdown_speed_mps": self.touchdown_speed,
+            "touchdown_height_m": self.touchdown_height,
             "touchdown_soft": soft,
             "disarmed": bool(disarmed),
             "aborted": aborted,

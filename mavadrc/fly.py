@@ -199,6 +199,7 @@ def run_context(mission, kind, connect, lockstep):
                       autopilot=mission.autopilot,
                       attitude_controller=mission.attitude_controller, noise=mission.noise,
                       sensor_latency_s=mission.sensor_latency_s,
+                      height_drift_mps=mission.height_drift_mps,
                       link=None if mission.link is None else mission.link.as_dict(),
                       heading_deg=("random" if math.isnan(mission.heading_deg)
                                    else mission.heading_deg),

@@ -219,11 +219,25 @@ class GroundPhases:
             return bool(ground)
         return None
 
+    def _contact_time(self):
+        """Vehicle time the vehicle came to rest on the ground: where it settled, or the first
+        sample of the descent history within 3 cm of where it rests now."""
+        if self._settled_since is not None:
+            return self._settled_since
+        z_now = self._descent[-1][1]
+        t = self._descent[-1][0]
+        for tk, zk in reversed(self._descent):
+            if abs(zk - z_now) > 0.03:
+                break
+            t = tk
+        return t
+
     def _touched_down(self, s, thrust, ground):
         """Touchdown seen on sample ``s`` (the autopilot said so: ``ground``): judge its speed,
         cut the thrust."""
         self.touchdown_speed = touchdown_speed(self._descent)
         self.touchdown_seen = True
+        self.touchdown_height = float(self.origin[2] - s.pos[2])
         self.ctrl.hold_disturbance()
         self._cut_from = thrust
         self.say(f"touchdown at {self.touchdown_speed:.2f} m/s "

@@ -398,6 +398,9 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     if abs(per * dt - h) > 1e-9 * h:
         raise ValueError(f"controller rate {spec.rate_hz:g} Hz must divide the physics rate "
                          f"{1.0 / dt:g} Hz for the in-process path")
+    if mission.height_drift_mps:
+        raise ValueError("sim.height_drift_mps: the in-process path does not model a drifting "
+                         "height estimate (it never lands); fly it over MAVLink")
     lag = int(round(mission.sensor_latency_s / h))
     if abs(lag * h - mission.sensor_latency_s) > 1e-9:
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "

@@ -85,6 +85,7 @@ class Mission:
     attitude_controller: str = "px4"  # the bundled vehicle's own inner loop
     noise: bool = False
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
+    height_drift_mps: float = 0.0  # the bundled vehicle's height estimate drifts up (m/s)
     link: object = None  # sim.link_model.LinkModel between the bundled vehicle and the companion
     #: the bundled vehicle against its file (``sim: {mass_scale, motor_thrust_curve,
     #: attitude_bandwidth_scale}``, :func:`sim.vehicle.vehicle_variant`): what the companion is
@@ -619,6 +620,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
                                          choices=("px4", "ladrc", "adrc", "pd"))
         m.noise = s.boolean("noise", False)
         m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
+        m.height_drift_mps = s.number("height_drift_mps", 0.0, ge=-0.5, le=0.5)
         if s.has("link"):
             from sim.link_model import link_from_section
             link = link_from_section(s.section("link"))

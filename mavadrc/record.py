@@ -267,6 +267,12 @@ class Recorder:
         self.ref.append(r.pos)
         self.pos.append(s.pos)
 
+    def unscore_from(self, t0):
+        """Steps from mission time ``t0`` on no longer count in the error figures (they stay in
+        the table)."""
+        keep = int(np.searchsorted(np.asarray(self.t), t0, side="left"))
+        del self.t[keep:], self.ref[keep:], self.pos[keep:]
+
     def sample_came(self):
         """A new position sample: the pending row gets whatever of its parts came."""
         if self._row is not None:

@@ -38,6 +38,9 @@ def add_arguments(p):
     p.add_argument("--noise", action="store_true",
                    help="report position/velocity/attitude/rates with typical sensor noise")
     p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
+    p.add_argument("--height-drift", type=float, default=0.0, metavar="M/S",
+                   help="the reported height estimate drifts up this fast (a barometer's drift; "
+                        "the vehicle lands where its estimate says the ground is)")
     p.add_argument("--link", default=None, metavar="FILE",
                    help="YAML file with a link model (latency, jitter, loss per direction, "
                         "blackouts), as a mission's sim: {link: ...}")
@@ -209,6 +212,8 @@ def make_servers(args):
             raise ValueError
     except ValueError:
         raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
+    if not math.isfinite(args.height_drift) or abs(args.height_drift) > 0.5:
+        raise SystemExit(f"--height-drift must be -0.5 to 0.5 m/s (got {args.height_drift!r})")
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
@@ -220,7 +225,8 @@ def make_servers(args):
         for k in range(count):
             vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed + k,
                                  sensors=sensors, attitude_controller=args.attitude_controller,
-                                 yaw=math.radians(args.heading))
+                                 yaw=math.radians(args.heading),
+                                 height_drift_mps=args.height_drift)
             servers.append(SitlServer(vehicle, args.autopilot, args.instance + k,
                                       lockstep=args.lockstep,
                                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,

@@ -280,8 +280,11 @@ class SimVehicle:
                  attitude_controller="px4", physics_dt=0.001, attitude_rate_hz=None,
                  position_rate_hz=100.0, max_thrust=None, hover_thrust=None, airmode=True,
                  attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
-                 auto_disarm_s=2.0, thrust_model_factor=0.0):
+                 auto_disarm_s=2.0, thrust_model_factor=0.0, height_drift_mps=0.0):
         self.params = resolve_vehicle(vehicle)
+        self.height_drift_mps = float(height_drift_mps)
+        if not math.isfinite(self.height_drift_mps):
+            raise ValueError(f"height_drift_mps must be finite (got {height_drift_mps!r})")
         vp = self.params
         self.physics_dt = float(physics_dt)
         if not (math.isfinite(self.physics_dt) and self.physics_dt > 0.0):
@@ -477,7 +480,12 @@ class SimVehicle:
         q = y[phys.IX_Q:phys.IX_Q + 4].copy()
         e = np.empty(3)
         quat_to_euler(q, e)
-        return Reported(self.time, y[0:3].copy(), y[3:6].copy(), q, e,
+        pos = y[0:3].copy()
+        if self.height_drift_mps:
+            # a height estimate that drifts (a barometer's): it reads higher by this much each
+            # second; the vehicle's own controllers fly on the truth or their estimate as before
+            pos[2] -= self.height_drift_mps * self.time
+        return Reported(self.time, pos, y[3:6].copy(), q, e,
                         y[phys.IX_W:phys.IX_W + 3].copy())
 
     def true_disturbance(self):

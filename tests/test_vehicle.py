@@ -167,6 +167,25 @@ def test_sensor_latency_delays_the_reports_not_the_firmware():
     assert np.abs(v.state[0:3] - [0.0, 0.0, -2.0]).max() < 0.05
 
 
+def test_a_drifting_height_estimate_reads_high_and_the_vehicle_holds_on_it():
+    """height_drift_mps: the reported height climbs that fast; the vehicle's own hold flies on
+    its estimate, so the true vehicle sinks as the estimate rises (a barometer's drift)."""
+    v = SimVehicle("x500", height_drift_mps=0.05)
+    assert v.reported().position[2] == pytest.approx(0.0)
+    v.arm()
+    v.takeoff(2.0)
+    v.step(8.0)
+    assert v.mode == "hold"
+    t = v.time
+    rep, true = v.reported().position[2], v.state[2]
+    assert rep - true == pytest.approx(-0.05 * t, abs=1e-9)
+    v.step(4.0)  # holding its estimate at 2 m: the truth sinks 5 cm a second
+    assert v.reported().position[2] == pytest.approx(rep, abs=0.03)
+    assert v.state[2] - true == pytest.approx(0.2, abs=0.03)
+    with pytest.raises(ValueError, match="height_drift_mps"):
+        SimVehicle("x500", height_drift_mps=math.nan)
+
+
 TURBULENT = {"components": [{"type": "constant", "speed": 3.0, "direction_from_deg": 45.0},
                             {"type": "dryden", "intensity": "light"}]}
 
