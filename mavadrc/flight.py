@@ -52,7 +52,7 @@ from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE, THRUST_ESTIMATE_S
 from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
-                       design_lag, observer_drag, observer_lag, summary_line)
+                       design_lag, observer_drag, observer_lag, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -574,6 +574,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                               identified=observer_lag(rec, self.m.controller),
                               drag=observer_drag(rec), designed_for=self._design_lag())
         ctrl, margin = self._build(self.hover, self.kind, gains)
+        rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, self.m.controller))
         return rec, ctrl, gains, margin
 
     def _identified(self, s, rec, ctrl, gains, margin):
@@ -607,8 +608,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
+        fitted = rec.get("delay_margin_s")
+        fitted = ("" if fitted is None else
+                  f"; {1e3 * fitted:.0f} ms on the response identified (its lags and dead time)")
         self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{drag}{bw} from "
-                 f"here; {margin_text(self.delay_margin)}")
+                 f"here; {margin_text(self.delay_margin)}{fitted}")
         slow = max(gains["input_lag"][0], gains["input_lag"][1])
         if self.delay_margin is not None and self.delay_margin < MARGIN_SHARE * slow:
             self._warn_once("margin", f"the delay margin ({1e3 * self.delay_margin:.0f} ms) is "

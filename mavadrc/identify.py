@@ -323,6 +323,22 @@ def design_lag(mission):
                                                         "latency": 0.0}))
 
 
+def response_margin(ctrl, rec, spec):
+    """The delay margin (s) of ``ctrl`` on the response identified rather than on its own input
+    model: its horizontal loop closed around :data:`ORDER` lags ``tau`` after the dead time
+    fitted on north (east shares them), the samples' age it compensates (``latency``) counted
+    as known.  The observers model the response as one lag of its 63 % time; the fitted one has
+    more phase lag at the loop's crossover, so this is the smaller margin, and the one a swing
+    in flight follows.  None without a fit."""
+    from .margin import delay_margin
+    f = rec["axes"].get("x", {})
+    if "tau_s" not in f:
+        return None
+    lat = spec.gains.get("latency", 0.0)
+    known = rec.get("sample_age_s", 0.0) if lat == "auto" else None
+    return delay_margin(ctrl, tau=f["tau_s"], delay=f["delay_s"], order=ORDER, known_s=known)
+
+
 def observer_drag(rec):
     """The linear drag (1/s per axis) of an identification for the observers' model (``drag:
     auto``): the fit's ``c``, none where it came out negative."""

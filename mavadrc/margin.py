@@ -37,20 +37,23 @@ MAX_EXTRA_S = 1.0
 _EPS = 1e-7  # finite-difference step: far inside fal's zone and fhan's linear region
 
 
-def _plant(tau, h):
-    """(A, B) of the sampled plant state (p, v, a) under a held command u."""
+def _plant(tau, h, order=1):
+    """(A, B) of the sampled plant state (p, v, a, and with ``order`` 2 the first lag's output)
+    under a held command u: ``order`` equal first-order lags ``tau`` from u to a."""
     if tau <= 0.0:
         return (np.array([[1.0, h, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]),
                 np.array([0.5 * h * h, h, 1.0]))
     from scipy.linalg import expm
 
-    m = np.zeros((4, 4))
+    nx = 2 + order
+    m = np.zeros((nx + 1, nx + 1))
     m[0, 1] = 1.0
     m[1, 2] = 1.0
-    m[2, 2] = -1.0 / tau
-    m[2, 3] = 1.0 / tau
+    for i in range(2, nx):  # a <- a1 <- ... <- u
+        m[i, i] = -1.0 / tau
+        m[i, i + 1] = 1.0 / tau
     e = expm(m * h)
-    return e[:3, :3], e[:3, 3]
+    return e[:nx, :nx], e[:nx, nx]
 
 
 class _Loop:
@@ -60,21 +63,23 @@ class _Loop:
     step); with ``feedforward`` the controller is also given -d as its reference acceleration
     (the oracle's law: the true disturbance fed forward)."""
 
-    def __init__(self, ctrl, tau, n, known=None, feedforward=False):
+    def __init__(self, ctrl, tau, n, known=None, feedforward=False, order=1):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
         self.alpha = float(ctrl._IN[0, IN_ALPHA])
-        self.A, self.B = _plant(tau, self.h)
+        self.A, self.B = _plant(tau, self.h, order)
+        self.nx = self.B.size
         self.n = n
         self.known = known
         self.ns = K.NS
         # channel state, input model, plant, command buffer; with a delay line, the delayed
         # estimate and the inputs applied over the known delay too
         self.line = 0 if known is None else 3 + known + 1
-        self.size = self.ns + 1 + 3 + n + self.line
+        self.size = self.ns + 1 + self.nx + n + self.line
         self.feedforward = feedforward
         h = self.h
-        self.Bd = np.array([0.5 * h * h, h, 0.0])  # a held disturbance acceleration
+        self.Bd = np.zeros(self.nx)  # a held disturbance acceleration
+        self.Bd[:2] = 0.5 * h * h, h
 
     def _channel(self, s, line, y, ydot, racc=0.0):
         """One step of the channel, through its delay line if it has one; the command."""
@@ -102,9 +107,10 @@ class _Loop:
         ns, n = self.ns, self.n
         s = z[:ns].copy()
         obs = z[ns]
-        x = z[ns + 1:ns + 4]
-        buf = z[ns + 4:ns + 4 + n]
-        line = z[ns + 4 + n:]
+        nx = self.nx
+        x = z[ns + 1:ns + 1 + nx]
+        buf = z[ns + 1 + nx:ns + 1 + nx + n]
+        line = z[ns + 1 + nx + n:]
         y, ydot = x[0], x[1]
         u, s, line = self._channel(s, line, y, ydot, -d if self.feedforward else 0.0)
         obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
@@ -169,22 +175,26 @@ def _delay(ctrl, delay):
     return latency if isinstance(latency, float) else 0.0
 
 
-def spectral_radius(ctrl, tau=None, delay=None):
-    """The linearised closed loop's spectral radius (< 1: stable) on the plant (lag ``tau`` s,
-    default the controller's own input model; ``delay`` s, rounded to samples, default the one
-    the controller assumes: its ``latency`` if a number, else none)."""
+def spectral_radius(ctrl, tau=None, delay=None, order=1):
+    """The linearised closed loop's spectral radius (< 1: stable) on the plant (``order`` equal
+    lags ``tau`` s, default one: the controller's own input model; ``delay`` s, rounded to
+    samples, default the one the controller assumes: its ``latency`` if a number, else none)."""
     tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
     h = float(ctrl._P[0, K.P_H])
     delay = _delay(ctrl, delay)
-    return _Loop(ctrl, tau, int(round(delay / h)), _known(ctrl, delay, h)).radius()
+    return _Loop(ctrl, tau, int(round(delay / h)), _known(ctrl, delay, h),
+                 order=order).radius()
 
 
-def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S):
+def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, known_s=None):
     """The extra delay (s, in whole control periods) the loop tolerates on the plant (lag ``tau``,
     default the controller's input model; ``delay`` s already there, default the one the
     controller assumes) before its linearisation is unstable: 0.0 if it is unstable with no
     extra delay (``math.inf`` past ``max_extra_s``).  A controller that compensates the samples'
-    age knows ``delay`` (measured, or its latency in seconds) and not the extra.
+    age knows ``delay`` (measured, or its latency in seconds) and not the extra; ``known_s``:
+    the seconds of it it knows instead (a dead time identified is not all sample age).
+    ``order``: the plant's lag is that many equal lags ``tau`` (2: the identified response,
+    :mod:`mavadrc.identify`).
     ``ctrl``: a :class:`mavadrc.control.position.PositionController`, at rest or not (its state
     is not touched)."""
     tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
@@ -192,11 +202,13 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S):
     delay = _delay(ctrl, delay)
     n0 = int(round(delay / h))
     known = _known(ctrl, delay, h)
-    if _Loop(ctrl, tau, n0, known).radius() >= 1.0:
+    if known is not None and known_s is not None:
+        known = min(int(round(known_s / h)), n0)
+    if _Loop(ctrl, tau, n0, known, order=order).radius() >= 1.0:
         return 0.0
     stable = 0
     for extra in range(1, int(math.ceil(max_extra_s / h)) + 1):
-        if _Loop(ctrl, tau, n0 + extra, known).radius() >= 1.0:
+        if _Loop(ctrl, tau, n0 + extra, known, order=order).radius() >= 1.0:
             return stable * h
         stable = extra
     return math.inf
