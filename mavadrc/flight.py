@@ -462,6 +462,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         link = self.link
         link.on_text = self.on_text
         try:
+            self._design_lag_first()
             self._connect()
             self._setup()
             self._loop()
@@ -561,6 +562,20 @@ class Flight(Preflight, GroundPhases, Failsafes):
             own = self.kind == spec.kind and ("wc" in spec.gains or "wo" in spec.gains)
             self._design = (design_lag(self.m),) if own else (None,)
         return self._design[0]
+
+    def _design_lag_first(self):
+        """The design lag, before anything is sent: it flies the mission's vehicle file in
+        process, which compiles the simulation's kernels on a first run (11 s here); made after
+        the doublets it held the fit's thread that long while the safe gains flew the mission
+        (0.8 m off on PX4 SIH) and, in lockstep, starved the vehicle past the telemetry
+        timeout."""
+        if needs_identification(self.m.controller, self.kind) and self._design is None:
+            t0 = time.perf_counter()
+            lag = self._design_lag()
+            if lag is not None and time.perf_counter() - t0 > 2.0:
+                self.say(f"the lag the mission's gains were chosen for: {lag[0]:.3f} s "
+                         f"horizontally, its vehicle file identified in process "
+                         f"({time.perf_counter() - t0:.0f} s: the kernels compiled once)")
 
     def _identify_fit(self, d):
         """The fit of the identify segment's samples ``d``, and, if it holds, the mission's

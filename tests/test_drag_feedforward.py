@@ -277,3 +277,32 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * f, abs=0.01)
     assert s["attitude_oscillation"]["amplitude_deg"] < 4.0
     assert s["after_settle"]["max_error_m"] < MAX_SLOWED_SPIRAL_M
+
+
+def test_the_design_lag_is_found_before_anything_flies(tmp_path, monkeypatch, capsys):
+    """The lag a mission's gains were chosen for comes from flying its vehicle file in process,
+    which compiles the simulation's kernels on a first run (11-25 s here).  Found after the
+    doublets, that held the controller's switch: on PX4 SIH the safe gains flew the figure
+    eight 0.8 m off for 17 s, and in lockstep the telemetry timeout ended the flight.  It is
+    found before the link is opened; here a design lag that takes 3 s."""
+    import time
+
+    import mavadrc.flight as F
+    from mavadrc.cli import main
+    real, calls = F.design_lag, []
+
+    def slow(mission):
+        calls.append(time.monotonic())
+        time.sleep(3.0)
+        return real(mission)
+
+    monkeypatch.setattr(F, "design_lag", slow)
+    code = main(["fly", "configs/missions/thesis_spiral_wind.yaml", "--lockstep", "--out",
+                 str(tmp_path), "--no-figures", "-q"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert len(calls) == 1
+    assert out.index("the lag the mission's gains were chosen for") < out.index("connected")
+    folder = next(p for p in Path(tmp_path).iterdir() if p.is_dir())
+    s = json.loads((folder / "summary.json").read_text())
+    assert s["landed"] and s["after_settle"]["max_error_m"] < 0.05
