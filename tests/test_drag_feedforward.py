@@ -306,3 +306,5 @@ def test_the_design_lag_is_found_before_anything_flies(tmp_path, monkeypatch, ca
     folder = next(p for p in Path(tmp_path).iterdir() if p.is_dir())
     s = json.loads((folder / "summary.json").read_text())
     assert s["landed"] and s["after_settle"]["max_error_m"] < 0.05
+    # the margin on the response as fitted (two lags and a dead time) is the smaller one
+    assert 0.0 < s["identification"]["delay_margin_s"] < s["delay_margin_s"]
