@@ -897,14 +897,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._in_final_land(t):
             if self._land_wall is None:
                 self._land_wall = time.monotonic()
-            ground = self._ground_contact(s, r.pos[2], self._land_wall)
-            if ground is not None:
+            how = self._ground_contact(s, r.pos[2], self._land_wall)
+            if how is not None:
                 # on the ground before the reference: the height estimate has drifted; what
                 # follows is the ground's push, not tracking, and is not scored
                 self.recorder.unscore_from(self._contact_time() - self._mission_t0)
                 self.say(f"on the ground {self.origin[2] - s.pos[2]:.2f} m above the takeoff "
                          "spot by the height estimate, before the land segment's end")
-                return self._touched_down(s, thrust, ground)
+                return self._touched_down(s, thrust, how)
         if t >= self.traj.duration:
             if not self.m.ends_landed:
                 # the mission ends in the air (an experiment run): the autopilot lands it
