@@ -230,19 +230,6 @@ class GroundPhases:
             return "settled" if still else "the ground carries its weight"
         return None
 
-    def _contact_time(self):
-        """Vehicle time the vehicle came to rest on the ground: where it settled, or the first
-        sample of the descent history within 3 cm of where it rests now."""
-        if self._settled_since is not None:
-            return self._settled_since
-        z_now = self._descent[-1][1]
-        t = self._descent[-1][0]
-        for tk, zk in reversed(self._descent):
-            if abs(zk - z_now) > 0.03:
-                break
-            t = tk
-        return t
-
     def _touched_down(self, s, thrust, how):
         """Touchdown seen on sample ``s`` (``how``: :meth:`_ground_contact`'s answer): judge its
         speed, cut the thrust."""

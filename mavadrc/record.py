@@ -273,6 +273,17 @@ class Recorder:
         keep = int(np.searchsorted(np.asarray(self.t), t0, side="left"))
         del self.t[keep:], self.ref[keep:], self.pos[keep:]
 
+    def contact_time(self, window_s=3.0):
+        """Mission time, within the last ``window_s`` of scored steps, where the reference was
+        least below the vehicle (down: reference minus position, smallest): where a vehicle
+        resting on the ground stopped following the reference down (None: no steps)."""
+        if not self.t:
+            return None
+        t = np.asarray(self.t)
+        keep = t >= t[-1] - window_s
+        lead = (np.asarray(self.ref)[keep, 2] - np.asarray(self.pos)[keep, 2])
+        return float(t[keep][int(np.argmin(lead))])
+
     def sample_came(self):
         """A new position sample: the pending row gets whatever of its parts came."""
         if self._row is not None:
