@@ -572,10 +572,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if needs_identification(self.m.controller, self.kind) and self._design is None:
             t0 = time.perf_counter()
             lag = self._design_lag()
-            if lag is not None and time.perf_counter() - t0 > 2.0:
+            took = time.perf_counter() - t0
+            if lag is not None and took > 2.0:
                 self.say(f"the lag the mission's gains were chosen for: {lag[0]:.3f} s "
                          f"horizontally, its vehicle file identified in process "
-                         f"({time.perf_counter() - t0:.0f} s: the kernels compiled once)")
+                         f"({took:.0f} s: the kernels compiled once)")
 
     def _identify_fit(self, d):
         """The fit of the identify segment's samples ``d``, and, if it holds, the mission's

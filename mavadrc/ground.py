@@ -11,6 +11,7 @@ autopilot's landing detector.
 
 import numpy as np
 
+from .control.geometry import GRAVITY
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
 from .identify import windows_in
@@ -28,7 +29,6 @@ SETTLED_S = 0.3
 #: touchdown also: the vertical disturbance estimate holds up this share of g (the ground carries
 #: the vehicle's weight), the reference below it, for SETTLED_S, whatever the velocity reads
 CARRIED_SHARE = 0.6
-GRAVITY = 9.80665
 CUT_S = 0.5  # thrust ramp down after touchdown
 #: s of position history before touchdown the touchdown speed is judged over
 DESCENT_S = 2.0
