@@ -902,7 +902,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             if how is not None:
                 # on the ground before the reference: the height estimate has drifted; what
                 # follows is the ground's push, not tracking, and is not scored
-                self.recorder.unscore_from(self.recorder.contact_time())
+                self.recorder.unscore_from_contact()
                 self.say(f"on the ground {self.origin[2] - s.pos[2]:.2f} m above the takeoff "
                          "spot by the height estimate, before the land segment's end")
                 return self._touched_down(s, thrust, how)

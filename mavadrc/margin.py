@@ -158,11 +158,14 @@ class _Loop:
         return float(max(abs(np.linalg.eigvals(J))))
 
 
-def _known(ctrl, delay, h):
-    """The samples of the plant's delay the controller compensates (None: it does not)."""
+def _known(ctrl, delay, h, known_s=None):
+    """The samples of the plant's delay the controller compensates (None: it does not):
+    ``known_s`` of it if given, else its latency (``auto``: all of ``delay``)."""
     latency = getattr(ctrl, "latency", None)
     if latency is None:
         return None
+    if known_s is not None:
+        return min(int(round(known_s / h)), int(round(delay / h)))
     return int(round((delay if latency == "auto" else latency) / h))
 
 
@@ -201,9 +204,7 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     h = float(ctrl._P[0, K.P_H])
     delay = _delay(ctrl, delay)
     n0 = int(round(delay / h))
-    known = _known(ctrl, delay, h)
-    if known is not None and known_s is not None:
-        known = min(int(round(known_s / h)), n0)
+    known = _known(ctrl, delay, h, known_s)
     if _Loop(ctrl, tau, n0, known, order=order).radius() >= 1.0:
         return 0.0
     stable = 0

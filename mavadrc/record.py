@@ -267,22 +267,18 @@ class Recorder:
         self.ref.append(r.pos)
         self.pos.append(s.pos)
 
-    def unscore_from(self, t0):
-        """Steps from mission time ``t0`` on no longer count in the error figures (they stay in
-        the table)."""
-        keep = int(np.searchsorted(np.asarray(self.t), t0, side="left"))
-        del self.t[keep:], self.ref[keep:], self.pos[keep:]
-
-    def contact_time(self, window_s=3.0):
-        """Mission time, within the last ``window_s`` of scored steps, where the reference was
-        least below the vehicle (down: reference minus position, smallest): where a vehicle
-        resting on the ground stopped following the reference down (None: no steps)."""
+    def unscore_from_contact(self, window_s=3.0):
+        """A vehicle resting on the ground stopped following the reference down where, within
+        the last ``window_s`` of scored steps, the reference was least below it (down:
+        reference minus position, smallest); the steps from there on no longer count in the
+        error figures (they stay in the table)."""
         if not self.t:
-            return None
+            return
         t = np.asarray(self.t)
-        keep = t >= t[-1] - window_s
-        lead = (np.asarray(self.ref)[keep, 2] - np.asarray(self.pos)[keep, 2])
-        return float(t[keep][int(np.argmin(lead))])
+        first = int(np.searchsorted(t, t[-1] - window_s, side="left"))
+        lead = [r[2] - p[2] for r, p in zip(self.ref[first:], self.pos[first:])]
+        keep = first + int(np.argmin(lead))
+        del self.t[keep:], self.ref[keep:], self.pos[keep:]
 
     def sample_came(self):
         """A new position sample: the pending row gets whatever of its parts came."""
