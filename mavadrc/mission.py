@@ -29,6 +29,7 @@ from sim.yamlio import ConfigError, Section, config_path, described, did_you_mea
 from . import trajectories as T
 from .control.kernels import AGE_MAX
 from .control.position import THRUST_ESTIMATE_S
+from .learn import TAU_S as DRAG_LEARN_S
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
@@ -398,6 +399,15 @@ def _read_controller(sec, kinds=None):
                       f"must be at most 20 /s (got {max(c.gains['drag']):g})")
         sec.check("drag", c.kind in ("ladrc", "adrc"),
                   "the drag is part of the observers' model: ladrc and adrc only")
+    if sec.has("drag_learn"):
+        # the memory (s) with which the horizontal drag is learnt in flight from the observers
+        # (mavadrc.learn; true: the default, on with drag: auto; 0 or false: the drag stays)
+        if isinstance(sec.data["drag_learn"], bool):
+            c.gains["drag_learn"] = DRAG_LEARN_S if sec.boolean("drag_learn") else 0.0
+        else:
+            c.gains["drag_learn"] = sec.number("drag_learn", ge=0.0, le=120.0)
+        sec.check("drag_learn", c.gains["drag_learn"] == 0.0 or c.kind in ("ladrc", "adrc"),
+                  "the drag is learnt from the observers: ladrc and adrc only")
     if sec.has("latency"):
         # how old the samples are, for the observers to compensate: auto (measured), seconds,
         # or 0 (not compensated)

@@ -41,6 +41,7 @@ COLUMNS = (
     + ["q_w", "q_x", "q_y", "q_z", "thrust"]
     + [f"true_dist_{a}" for a in AXES]
     + ["dt", "sample_age"]  # s since the previous sample; s from its taking to our reading
+    + ["drag_x", "drag_y"]  # 1/s: the horizontal drag the observers model (learnt: drag_learn)
 )
 
 
@@ -258,6 +259,7 @@ class Recorder:
         row += [*ctrl.accel_command.tolist(), *ctrl.accel_applied.tolist(), *map(float, q),
                 float(thrust), math.nan, math.nan, math.nan,
                 math.nan if s.dt is None else s.dt, math.nan if s.age is None else s.age]
+        row += ctrl.drag[:2].tolist() if ctrl.models_drag else [math.nan, math.nan]
         self._row = row
         self._row_ms = int(round(s.t * 1000.0))
         self._row_have = 0

@@ -55,7 +55,8 @@ def _write_record(folder, controller="ADRC"):
         row = {"t": float(ti), "phase": "takeoff" if i < 50 else ("land" if i > 350 else "mission"),
                "ref_yaw": float(yaw), "yaw": float(yaw), "thrust": 0.5 + 0.05 * math.sin(ti),
                "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
-               "dt": DT * (3 if i == 200 else 1), "sample_age": 0.004 + 0.001 * (i % 3)}
+               "dt": DT * (3 if i == 200 else 1), "sample_age": 0.004 + 0.001 * (i % 3),
+               "drag_x": 0.5, "drag_y": 0.5}
         for k, a in enumerate(record.AXES):
             row.update({f"ref_{a}": float(ref[i, k]), f"pos_{a}": float(pos[i, k]),
                         f"ref_v{a}": 0.0, f"ref_a{a}": 0.0, f"vel_{a}": 0.0,

@@ -448,6 +448,24 @@ class PositionController:
         loop stays the one its gains and delay margin were designed for."""
         return self._IN[:, IN_DRAG].copy()
 
+    def set_drag(self, drag):
+        """Fly the linear drag ``drag`` ((3,) 1/s) from the next step on (learnt in flight:
+        :mod:`mavadrc.learn`).  The observers' states are kept: their z3 gives up the part of
+        the disturbance the model now carries over the next steps."""
+        d = np.array(drag, dtype=np.float64).reshape(3)
+        if not np.all((d >= 0.0) & (d <= 20.0)):
+            raise ValueError(f"the drag must be within [0, 20] /s per axis (got {d.tolist()})")
+        if not self.models_drag:
+            raise ValueError("the drag is part of the ladrc and adrc observers' model (not "
+                             "with the TD)")
+        self._IN[:, IN_DRAG] = d
+
+    @property
+    def models_drag(self):
+        """Whether the drag is in the observers' model (:attr:`drag`): LADRC and ADRC, but
+        not ADRC with its TD."""
+        return self.kind == "ladrc" or (self.kind == "adrc" and self._P[0, K.P_TD] == 0.0)
+
     @property
     def td(self):
         """(3, 2) TD outputs v1, v2 per axis (classical ADRC)."""
