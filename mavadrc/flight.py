@@ -445,6 +445,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
+        self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
         self._error = None  # why the flight was refused before anything flew

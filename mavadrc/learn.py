@@ -37,7 +37,7 @@ MIN_INFORMATION = 0.45
 #: and at least this many seconds of samples.  Sooner (1.5 s, 0.5 /s per s) the first
 #: estimates of a figure eight's run-up scattered 0.6-1.6 /s (replayed on PX4 SIH flights) and
 #: the bundled PX4 SIH model's figure eight flew 0.079 m against 0.062
-MIN_SECONDS = 5.0
+MIN_SECONDS = 3.0
 #: the most the controller's drag changes per second (1/s per s)
 RATE_PER_S2 = 0.25
 #: the drag learnt is kept within [0, DRAG_MAX] (1/s; the mission file's bound)
