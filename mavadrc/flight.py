@@ -193,6 +193,12 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
 MARGIN_SHARE = 0.75
 
 
+#: the drag learnt this long (s) before the identify segment is fitted again with it known
+REFINE_AFTER_S = 6.0
+#: and the lag refitted flown only when it moves by more than this share
+REFINE_TOLERANCE = 0.05
+
+
 #: a vehicle identified slower than the one a mission's gains were chosen for by more than the
 #: identification's accuracy (tested within 15 %) may fly them slowed (scale_to_vehicle)
 SCALE_TOLERANCE = 1.15
@@ -388,6 +394,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._attitude_ms = None  # the newest ATTITUDE's time_boot_ms
         self.ctrl = None
         self._learner = None  # the drag learnt along the mission (mavadrc.learn)
+        self._id_samples = None  # the identify segment's samples, fitted again with the drag
+        self._refine_job = None
+        self._refine_done = False
         self.gains = None  # the controller's gains, resolved (resolve_gains)
         # input_lag: auto: the fit of the identify segment (mavadrc.identify); until it is
         # made, the safe default LADRC flies
@@ -581,6 +590,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return
         d = np.asarray(self._id_data)
         self._id_data = []
+        self._id_samples = d  # fitted again once the drag is learnt (_refine_step)
         if self.lockstep:
             return self._identified(s, *self._identify_fit(d))
         import concurrent.futures
@@ -613,12 +623,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
                          f"horizontally, its vehicle file identified in process "
                          f"({took:.0f} s: the kernels compiled once)")
 
-    def _identify_fit(self, d):
-        """The fit of the identify segment's samples ``d``, and, if it holds, the mission's
-        controller made with it: (record, controller or None, gains, delay margin)."""
+    def _identify_fit(self, d, drag=None):
+        """The fit of the identify segment's samples ``d`` (``drag``: known per axis, else
+        fitted), and, if it holds, the mission's controller made with it: (record, controller
+        or None, gains, delay margin)."""
         rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], self._id_windows,
                          f"in flight, on system {self.link.target_system} "
-                         f"({self.link.autopilot})")
+                         f"({self.link.autopilot})", drag=drag)
         if failure_text(rec) is not None:
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
@@ -673,6 +684,80 @@ class Flight(Preflight, GroundPhases, Failsafes):
                             f"({1e3 * slow:.0f} ms): the mission's gains are fast for this "
                             "vehicle and a limit cycle is likely (without wc and wo the "
                             "defaults are slowed to keep that margin)", every=0.0)
+
+    def _refine_step(self, s, t):
+        """Once the drag has been learnt for :data:`REFINE_AFTER_S`, fit the identify segment's
+        samples again with it known (the doublets alone trade the drag against the lag) and, if
+        the lag moves by more than :data:`REFINE_TOLERANCE`, fly on with the controller made
+        with the lag refined (its gains resolved again: a mission's own are scaled to it).
+        Made in a thread in real time, at once in lockstep, as the first fit."""
+        if self._refine_job is not None:
+            if self._refine_job.done():
+                job, self._refine_job = self._refine_job, None
+                self._refined(s, t, *job.result())
+            return
+        learner = self._learner
+        if (self._id_samples is None or self._refine_done or learner.first_used_s is None
+                or t - learner.first_used_s < REFINE_AFTER_S):
+            return
+        self._refine_done = True
+        drag = list(learner.estimate)
+        model = self.ctrl.drag
+        for i in range(3):
+            if drag[i] != drag[i]:
+                drag[i] = None if i == 2 else float(model[i])
+        drag[2] = None  # the vertical drag is the doublets' (not learnt)
+        if self.lockstep:
+            return self._refined(s, t, drag, *self._identify_fit(self._id_samples, drag))
+        import concurrent.futures
+        pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="refine")
+        self._refine_job = pool.submit(lambda: (drag, *self._identify_fit(self._id_samples,
+                                                                           drag)))
+        pool.shutdown(wait=False)
+
+    def _refined(self, s, t, drag, rec, ctrl, gains, margin):
+        """The refit's result (``drag``: the horizontal drag it took as known), from sample
+        ``s`` (mission time ``t``) on."""
+        old_lag = self.gains["input_lag"]
+        note = {"at_s": round(t, 2), "drag_per_s": [None if x is None else round(x, 4)
+                                                      for x in drag[:2]],
+                "axes": rec["axes"]}
+        if ctrl is None:
+            note["flown"] = False
+            note["why"] = failure_text(rec)
+            self.identification["refined"] = note
+            return
+        new_lag = gains["input_lag"]
+        note["input_lag"] = [round(x, 4) for x in rec["input_lag"]]
+        change = abs(new_lag[0] - old_lag[0]) / max(old_lag[0], 1e-9)
+        note["flown"] = bool(change > REFINE_TOLERANCE)
+        self.identification["refined"] = note
+        if not note["flown"]:
+            self.say(f"input model fitted again with the drag learnt: {new_lag[0]:.3f} s "
+                     f"horizontally (flying {old_lag[0]:.3f}): kept")
+            return
+        old = self.ctrl
+        ctrl.set_drag([*self._learner.flown[:2], ctrl.drag[2]])
+        carry_on(ctrl, old)
+        self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
+        rec_margin = response_margin(ctrl, rec, self.m.controller)
+        note["delay_margin_s"] = margin_record(rec_margin)
+        bw = ""
+        if "wc" in gains and "wo" in gains:
+            bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
+                  f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
+        design, given = self._design_lag(), self.m.controller.gains.get("wc")
+        if design is not None and given is not None and "wc" in gains:
+            f = float(gains["wc"][0]) / float(given[0])
+            self.gains_scaled = (None if f >= 1.0 else
+                                 {"design_lag_s": [round(x, 4) for x in design],
+                                  "factor": round(f, 3)})
+        self.say(f"input model fitted again with the drag learnt "
+                 f"({', '.join(f'{x:.2f}' for x in drag[:2])} /s): {new_lag[0]:.3f} s "
+                 f"horizontally for the doublets' {old_lag[0]:.3f}; flying it{bw} from here; "
+                 f"{margin_text(margin)}"
+                 + ("" if rec_margin is None else
+                    f"; {1e3 * rec_margin:.0f} ms on the response identified"))
 
     # --- the loop ------------------------------------------------------------------------------
 
@@ -917,6 +1002,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         q, thrust = self._control_step(s, rc)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
+            self._refine_step(s, t)
         self._identify_step(s, t)
         self._descent_history(s)
         if not self._lifted:
@@ -1158,6 +1244,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
         self.rec.write_summary(summary)
         return summary
+
+
+def carry_on(ctrl, old):
+    """Go on with ``ctrl`` (of ``old``'s kind, its gains or model changed) where ``old`` is:
+    every observer state, the input model's state and the thrust learnt, so the loop goes on
+    without a jump mid-mission."""
+    ctrl._S[:] = old._S
+    ctrl._IN[:, IN_STATE] = old._IN[:, IN_STATE]
+    if ctrl.learns_thrust and old.learns_thrust:
+        ctrl.adopt_thrust(old)
 
 
 def carry_over(ctrl, old, pos, vel):

@@ -75,8 +75,9 @@ def _shifted_hold(t, u, grid, d):
 class _AxisFit:
     """Least squares of one axis for given (tau, d)."""
 
-    def __init__(self, t, u, v, t0, t1):
+    def __init__(self, t, u, v, t0, t1, drag=None):
         self.t, self.u = t, u
+        self.drag = None if drag is None else float(drag)  # fixed (1/s), or fitted (None)
         lead = t0 - MAX_DELAY_S - 0.05
         self.grid = np.arange(max(lead, t[0]), t1 + FINE_S, FINE_S)
         keep = (t >= t0) & (t <= t1)
@@ -106,6 +107,13 @@ class _AxisFit:
         # the modelled velocity change since the window began
         w = np.cumsum(y) * FINE_S
         w = w[self.at] - w[self.i0]
+        if self.drag is not None:  # the drag known: its push moves to the measured side
+            target = self.vs + self.drag * self.iv
+            A = np.column_stack([w, *self.poly])
+            coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+            r = target - A @ coef
+            b = coef[2] / max(self.rel[-1], 1e-9)
+            return float(r @ r), float(coef[0]), float(coef[1]), float(b), self.drag
         A = np.column_stack([w, -self.iv, *self.poly])
         coef, *_ = np.linalg.lstsq(A, self.vs, rcond=None)
         r = self.vs - A @ coef
@@ -161,7 +169,7 @@ def fit_axis(t, u, v, t0, t1):
     return _record(f, *_search([f]))
 
 
-def fit(t, u, v, windows, shared_xy=True):
+def fit(t, u, v, windows, shared_xy=True, drag=None):
     """Each axis of ``windows`` ([(axis, t0, t1)], as :class:`Doublets` gives them, in the
     samples' time) fitted as :func:`fit_axis` does; returns the identification record: per axis
     the fit, and ``input_lag`` (x, y, z: the lag for the observers) when every axis fitted well.
@@ -170,13 +178,19 @@ def fit(t, u, v, windows, shared_xy=True):
     and disturbance (a multirotor's roll and pitch answer alike).  Fitted alone, the second
     horizontal axis on PX4 SIH came out 0.21-0.35 s over five flights where the first gave
     0.24-0.27: in closed loop the gain, the drag and the lag trade against each other, and two
-    axes' doublets pin them down where one does not."""
+    axes' doublets pin them down where one does not.
+
+    ``drag``: (3,) the drag per axis when it is known (None entries, or None: fitted).  The
+    doublets tell the drag poorly: it trades against the lag (on PX4 SIH the free fit gave
+    0.22-0.29 s with 0.46-1.35 /s for SIH's 1 /s; with the drag learnt along the mission,
+    :mod:`mavadrc.learn`, the same samples gave 0.244-0.271 s)."""
     t, u, v = (np.asarray(a, dtype=float) for a in (t, u, v))
     fits = {}
     axes = {}
     for ax, t0, t1 in windows:
         try:
-            fits[ax] = _AxisFit(t, u[:, ax], v[:, ax], t0, t1)
+            fits[ax] = _AxisFit(t, u[:, ax], v[:, ax], t0, t1,
+                                None if drag is None else drag[ax])
         except ValueError as exc:
             axes[AXES[ax]] = {"ok": False, "error": str(exc)}
     groups = [[0, 1], [2]] if shared_xy and 0 in fits and 1 in fits else [[a] for a in fits]
@@ -279,11 +293,11 @@ def identify_inprocess(mission, seed=None):
     return _CACHE[key]
 
 
-def fit_flight(t, u, v, age, windows, flown):
+def fit_flight(t, u, v, age, windows, flown, drag=None):
     """The identification record of a flight's samples: :func:`fit` of the commands ``u`` and
-    velocities ``v`` at times ``t``, the samples' median age (``age``, s; NaN: unknown) and where
-    it was ``flown``."""
-    rec = fit(t, u, v, windows)
+    velocities ``v`` at times ``t`` (``drag``: known per axis, as :func:`fit` takes it), the
+    samples' median age (``age``, s; NaN: unknown) and where it was ``flown``."""
+    rec = fit(t, u, v, windows, drag=drag)
     rec["sample_age_s"] = median_age(t, age, windows)
     rec["flown"] = flown
     return rec
