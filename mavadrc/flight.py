@@ -653,22 +653,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
         carry_over(self.ctrl, old, s.pos, s.vel)
         self._learner = self._drag_learner(ctrl, gains)
         lag = ", ".join(f"{x:.3f}" for x in gains["input_lag"])
-        bw = ""
-        if "wc" in gains and "wo" in gains:
-            bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
-                  f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
-        design = self._design_lag()
-        given = self.m.controller.gains.get("wc")
-        if design is not None and given is not None and "wc" in gains:
-            f = float(gains["wc"][0]) / float(given[0])
-            if f < 1.0:
-                self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
-                                     "factor": round(f, 3)}
-                name = getattr(self.m.vehicle, "name", self.m.vehicle)
-                self.say(f"the mission's gains were chosen for a vehicle answering in "
-                         f"{design[0]:.3f} s horizontally ({name}); this one takes "
-                         f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{f:.2f}, to "
-                         "keep their delay margin")
+        bw = _bandwidths(gains)
+        if self._note_scaling(gains) is not None:
+            f, design = self.gains_scaled["factor"], self.gains_scaled["design_lag_s"]
+            name = getattr(self.m.vehicle, "name", self.m.vehicle)
+            self.say(f"the mission's gains were chosen for a vehicle answering in "
+                     f"{design[0]:.3f} s horizontally ({name}); this one takes "
+                     f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{f:.2f}, to "
+                     "keep their delay margin")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
@@ -684,6 +676,19 @@ class Flight(Preflight, GroundPhases, Failsafes):
                             f"({1e3 * slow:.0f} ms): the mission's gains are fast for this "
                             "vehicle and a limit cycle is likely (without wc and wo the "
                             "defaults are slowed to keep that margin)", every=0.0)
+
+    def _note_scaling(self, gains):
+        """``gains_scaled`` for the gains flown: the factor by which :func:`scale_to_vehicle`
+        slowed the mission's own horizontal wc, and the lags they were chosen for (None: flown
+        as given).  Returns it."""
+        design, given = self._design_lag(), self.m.controller.gains.get("wc")
+        self.gains_scaled = None
+        if design is not None and given is not None and "wc" in gains:
+            f = float(gains["wc"][0]) / float(given[0])
+            if f < 1.0:
+                self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
+                                     "factor": round(f, 3)}
+        return self.gains_scaled
 
     def _refine_step(self, s, t):
         """Once the drag has been learnt for :data:`REFINE_AFTER_S`, fit the identify segment's
@@ -740,22 +745,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
         ctrl.set_drag([*self._learner.flown[:2], ctrl.drag[2]])
         carry_on(ctrl, old)
         self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
-        rec_margin = response_margin(ctrl, rec, self.m.controller)
-        note["delay_margin_s"] = margin_record(rec_margin)
-        bw = ""
-        if "wc" in gains and "wo" in gains:
-            bw = (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
-                  f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
-        design, given = self._design_lag(), self.m.controller.gains.get("wc")
-        if design is not None and given is not None and "wc" in gains:
-            f = float(gains["wc"][0]) / float(given[0])
-            self.gains_scaled = (None if f >= 1.0 else
-                                 {"design_lag_s": [round(x, 4) for x in design],
-                                  "factor": round(f, 3)})
+        rec_margin = rec.get("delay_margin_s")  # on the response refitted (_identify_fit)
+        note["delay_margin_s"] = rec_margin
+        self._note_scaling(gains)
         self.say(f"input model fitted again with the drag learnt "
                  f"({', '.join(f'{x:.2f}' for x in drag[:2])} /s): {new_lag[0]:.3f} s "
-                 f"horizontally for the doublets' {old_lag[0]:.3f}; flying it{bw} from here; "
-                 f"{margin_text(margin)}"
+                 f"horizontally for the doublets' {old_lag[0]:.3f}; flying it"
+                 f"{_bandwidths(gains)} from here; {margin_text(margin)}"
                  + ("" if rec_margin is None else
                     f"; {1e3 * rec_margin:.0f} ms on the response identified"))
 
@@ -1244,6 +1240,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
         self.rec.write_summary(summary)
         return summary
+
+
+def _bandwidths(gains):
+    """", wc (...), wo (...)" of ``gains`` for the console ("" without both)."""
+    if "wc" not in gains or "wo" not in gains:
+        return ""
+    return (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
+            f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
 
 
 def carry_on(ctrl, old):

@@ -46,6 +46,18 @@ def plant_response(u_of_t, tau, d, *, order=2, drag=0.3, gust=None, h=0.01, seco
     return np.array(ts), np.array(us), np.array(vs)
 
 
+def _doublets_from(start):
+    """The identification's north doublets (2 m/s^2) from ``start`` s on, and the command they
+    give as a function of time."""
+    ref = Doublets((0, 0, 0), amplitude=2.0, half_period=I.HALF_PERIOD, repeats=I.REPEATS,
+                   rest=I.REST_S, axes=(0,))
+
+    def u_of_t(t):
+        return float(ref.sample(t - start).acc[0]) if t >= start else 0.0
+
+    return ref, u_of_t
+
+
 def t63(tau, d, order):
     return d + (I.T63[order] * tau)
 
@@ -54,11 +66,7 @@ def t63(tau, d, order):
 def test_the_fit_recovers_a_plant_of_its_own_form(tau, d):
     """Two lags plus dead time, drag and a gust drifting under the doublets, velocity noise
     1 cm/s at 100 Hz: the lag within 15 %, the dead time within one sample."""
-    ref = Doublets((0, 0, 0), amplitude=2.0, half_period=I.HALF_PERIOD, repeats=I.REPEATS,
-                   rest=I.REST_S, axes=(0,))
-
-    def u_of_t(t):
-        return float(ref.sample(t - 0.5).acc[0]) if t >= 0.5 else 0.0
+    ref, u_of_t = _doublets_from(0.5)
 
     def gust(t):
         return 0.8 * math.sin(0.9 * t) + 0.3
@@ -242,11 +250,7 @@ def test_a_known_drag_pins_the_lag_the_doublets_trade_it_against():
     1 cm/s of noise: with the drag known the lag comes out within 5 % of its 63 % time and the
     record keeps the drag given; a drag told too high or too low moves the lag along with it
     (the ridge the free fit wanders on: on PX4 SIH 0.22-0.29 s with 0.46-1.35 /s)."""
-    ref = Doublets((0, 0, 0), amplitude=2.0, half_period=I.HALF_PERIOD, repeats=I.REPEATS,
-                   rest=I.REST_S, axes=(0,))
-
-    def u_of_t(t):
-        return float(ref.sample(t - 0.5).acc[0]) if t >= 0.5 else 0.0
+    ref, u_of_t = _doublets_from(0.5)
 
     def gust(t):
         return 0.5 * math.sin(0.7 * t) + 0.2
