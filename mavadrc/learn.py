@@ -32,7 +32,7 @@ import numpy as np
 TAU_S = 10.0
 #: the information on the slope before it is used: the reference velocity's spread (weighted
 #: mean square apart from the mean and the acceleration, m^2/s^2) times the samples' weight (s):
-#: 0.3 m/s of spread over 5 s
+#: as much as 0.3 m/s of spread over 5 s
 MIN_INFORMATION = 0.45
 #: and at least this many seconds of samples.  Sooner (1.5 s, 0.5 /s per s) the first
 #: estimates of a figure eight's run-up scattered 0.6-1.6 /s (replayed on PX4 SIH flights) and
