@@ -152,9 +152,9 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
                 given.setdefault(key, spec.gains[key])
         if given.get("input_lag") == "auto":
             given.setdefault("drag", "auto")
-        if "drag_learn" not in given and drag_learn_memory(spec, kind) > 0.0:
-            # the doublets' drag is a start: learnt along the mission (mavadrc.learn)
-            given["drag_learn"] = DRAG_LEARN_S
+        tau = drag_learn_memory(spec, kind)
+        if tau > 0.0:  # the doublets' drag is a start: learnt along the mission (mavadrc.learn)
+            given.setdefault("drag_learn", tau)
     lag = given.get("input_lag")
     told = lag == "auto" or (lag is not None and any(float(v) > 0.0 for v in lag))
     gains = default_gains(kind, told)  # the mission's gains, where given, override these
@@ -706,12 +706,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 or t - learner.first_used_s < REFINE_AFTER_S):
             return
         self._refine_done = True
-        drag = list(learner.estimate)
-        model = self.ctrl.drag
-        for i in range(3):
-            if drag[i] != drag[i]:
-                drag[i] = None if i == 2 else float(model[i])
-        drag[2] = None  # the vertical drag is the doublets' (not learnt)
+        # north and east as learnt (as flown where not yet told); the vertical fitted again
+        drag = [float(c) if c == c else float(m)
+                for c, m in zip(learner.estimate[:2], self.ctrl.drag[:2])] + [None]
         if self.lockstep:
             return self._refined(s, t, drag, *self._identify_fit(self._id_samples, drag))
         import concurrent.futures
@@ -742,7 +739,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                      f"horizontally (flying {old_lag[0]:.3f}): kept")
             return
         old = self.ctrl
-        ctrl.set_drag([*self._learner.flown[:2], ctrl.drag[2]])
+        ctrl.set_drag([*old.drag[:2], ctrl.drag[2]])  # the drag learnt so far goes on
         carry_on(ctrl, old)
         self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
         rec_margin = rec.get("delay_margin_s")  # on the response refitted (_identify_fit)

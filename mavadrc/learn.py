@@ -28,6 +28,8 @@ import math
 
 import numpy as np
 
+from .control.position import DRAG_MAX
+
 #: the default memory of the regression (s): a figure eight's half period and more
 TAU_S = 10.0
 #: the information on the slope before it is used: the reference velocity's spread (weighted
@@ -40,8 +42,6 @@ MIN_INFORMATION = 0.45
 MIN_SECONDS = 3.0
 #: the most the controller's drag changes per second (1/s per s)
 RATE_PER_S2 = 0.25
-#: the drag learnt is kept within [0, DRAG_MAX] (1/s; the mission file's bound)
-DRAG_MAX = 20.0
 #: the axes learnt: north and east
 AXES = (0, 1)
 
@@ -65,24 +65,23 @@ class DragLearner:
         self._w = 0.0  # forgotten sum of the samples' durations (s)
         self.estimate = np.full(3, math.nan)
         self.first_used_s = None  # mission time the slope was first used
-        self.samples = 0
 
     def _slope(self, i):
-        """(drag, spread) on axis ``i`` from the normal equations (nan: not yet told)."""
+        """The drag on axis ``i`` from the normal equations (nan: not yet told)."""
         A = self._A[i]
         if self._w < MIN_SECONDS or A[0, 0] <= 0.0:
-            return math.nan, 0.0
+            return math.nan
         # the reference velocity's weighted spread apart from what the mean and the
         # acceleration explain: the slope's information per unit weight
         try:
             other = np.linalg.solve(A[np.ix_((0, 2), (0, 2))], A[(0, 2), 1])
         except np.linalg.LinAlgError:
-            return math.nan, 0.0
+            return math.nan
         spread2 = (A[1, 1] - A[1, (0, 2)] @ other) / A[0, 0]
         if not spread2 * self._w >= MIN_INFORMATION:
-            return math.nan, math.sqrt(max(spread2, 0.0))
+            return math.nan
         theta = np.linalg.solve(A, self._b[i])
-        return float(min(max(-theta[1], 0.0), DRAG_MAX)), math.sqrt(spread2)
+        return float(min(max(-theta[1], 0.0), DRAG_MAX))
 
     def _observe(self, ctrl, dt, ref_vel, ref_acc):
         z3 = ctrl.z[:, 2]
@@ -98,9 +97,8 @@ class DragLearner:
                 continue
             self._A[i] += dt * np.outer(x, x)
             self._b[i] += dt * x * y
-        self.samples += 1
         for i in AXES:
-            c, _ = self._slope(i)
+            c = self._slope(i)
             if c == c:
                 self.estimate[i] = c
         return model

@@ -28,7 +28,7 @@ from sim.yamlio import ConfigError, Section, config_path, described, did_you_mea
 
 from . import trajectories as T
 from .control.kernels import AGE_MAX
-from .control.position import THRUST_ESTIMATE_S
+from .control.position import DRAG_MAX, THRUST_ESTIMATE_S
 from .learn import TAU_S as DRAG_LEARN_S
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
@@ -395,8 +395,8 @@ def _read_controller(sec, kinds=None):
         else:
             c.gains["drag"] = tuple(float(x) for x in
                                     sec.vector("drag", 3, scalar_ok=True, ge=0.0))
-            sec.check("drag", max(c.gains["drag"]) <= 20.0,
-                      f"must be at most 20 /s (got {max(c.gains['drag']):g})")
+            sec.check("drag", max(c.gains["drag"]) <= DRAG_MAX,
+                      f"must be at most {DRAG_MAX:g} /s (got {max(c.gains['drag']):g})")
         sec.check("drag", c.kind in ("ladrc", "adrc"),
                   "the drag is part of the observers' model: ladrc and adrc only")
     if sec.has("drag_learn"):

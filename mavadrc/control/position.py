@@ -24,6 +24,7 @@ IN_STATE = 1  # the lag's output: the acceleration the observer is fed
 IN_TAU = 2  # the lag's time constant (s; 0: none)
 IN_DIFF = 3  # last command minus the lag's output before it (to redo the last advance)
 IN_DRAG = 4  # the vehicle's linear drag (1/s; 0: none): a = u - drag * v + disturbance
+DRAG_MAX = 20.0  # the most drag (1/s per axis) a model may give, learnt or told
 NIN = 5
 
 
@@ -274,7 +275,7 @@ class PositionController:
             for i, tau in enumerate(lag):
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
-        drag = _model_axes(gains.pop("drag", None), kind, "drag", "/s", 20.0,
+        drag = _model_axes(gains.pop("drag", None), kind, "drag", "/s", DRAG_MAX,
                            "is part of the observers' model")
         if drag is not None:
             self._IN[:, IN_DRAG] = drag
@@ -453,8 +454,9 @@ class PositionController:
         :mod:`mavadrc.learn`).  The observers' states are kept: their z3 gives up the part of
         the disturbance the model now carries over the next steps."""
         d = np.array(drag, dtype=np.float64).reshape(3)
-        if not np.all((d >= 0.0) & (d <= 20.0)):
-            raise ValueError(f"the drag must be within [0, 20] /s per axis (got {d.tolist()})")
+        if not np.all((d >= 0.0) & (d <= DRAG_MAX)):
+            raise ValueError(f"the drag must be within [0, {DRAG_MAX:g}] /s per axis (got "
+                             f"{d.tolist()})")
         if not self.models_drag:
             raise ValueError("the drag is part of the ladrc and adrc observers' model (not "
                              "with the TD)")
