@@ -14,7 +14,7 @@ import numpy as np
 from .control.geometry import GRAVITY
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
-from .identify import windows_in
+from .identify import leg_speed_of, windows_in
 from .margin import margin_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
@@ -178,7 +178,7 @@ class GroundPhases:
             self.ctrl.reset(s.pos)
         self._grid = None
         if self._identifying():
-            self._id_windows = windows_in(self.phases)
+            self._id_windows = windows_in(self.phases, leg_speed=leg_speed_of(self.m))
             self._id_span = (self._id_windows[0][1], self._id_windows[-1][2])
         self._mission_t0 = s.t
         self.mission_start = s.t

@@ -8,8 +8,9 @@ on the vehicle being flown, never read from a model of it:
    no input model), which hold on any vehicle of the family the README describes;
 2. it flies acceleration doublets about the hover point, one axis after the other
    (:class:`mavadrc.trajectories.Doublets`: +-2 m/s^2 horizontally, about 11 deg of tilt, and
-   +-1 m/s^2 vertically, 0.4 s each way, 0.32 m and 0.16 m of excursion; 12.6 s in all),
-   tracked as a reference, so the commands are mostly the doublets;
+   +-1 m/s^2 vertically, 0.4 s each way, 0.32 m and 0.16 m of excursion; 12.6 s), then a drag
+   leg out and back diagonally at :data:`LEG_SPEED` (8.2 s; 20.8 s in all), tracked as a
+   reference, so the commands are mostly the doublets;
 3. per axis a model of how the commanded acceleration ``u`` (the limited command, held between
    samples) becomes the vehicle's, ``a(t) = k L(u(t - d)) - c v + b(t)``, is fitted to the
    measured velocity ``v``: ``L`` two equal first-order lags ``tau`` (the attitude loop and the
@@ -22,7 +23,10 @@ on the vehicle being flown, never read from a model of it:
    amplified.  Without the drag term the fit mistakes the drag's growing push for a faster
    response (on the bundled Crazyflie: a lag of 0.10 s against a true 63 % time of 0.128 s);
    with a constant disturbance only, turbulence spoils it (x500 in moderate gusts: 0.03-0.15
-   s scattered; with the drifting one, 0.124-0.130 s).
+   s scattered; with the drifting one, 0.124-0.130 s).  The drag ``c`` trades against the lag
+   along the doublets (PX4 SIH: 0.46-1.35 /s for its 1.0 from flight to flight); at constant
+   speed on the leg it does not, and the fit ties it to the gain as the leg reads it
+   (:func:`leg_reading`).
 
 The observers' input model is then the single lag with the fitted response's 63 % time,
 ``d + 2.146 tau`` (the first-order lag it has always been).  How that time splits into lag and
@@ -40,6 +44,17 @@ AMPLITUDE = (2.0, 2.0, 1.0)
 HALF_PERIOD = 0.4
 REPEATS = 2
 REST_S = 1.0
+#: the drag leg after the doublets (:class:`mavadrc.trajectories.Doublets`): north and east
+#: speed (m/s; diagonally 1.4 m/s, 2.8 m out and back), ramp and cruise (s), and how much of
+#: the end of each cruise its commands and velocities are averaged over (s)
+LEG_SPEED = 1.0
+LEG_RAMP_S = 0.8
+LEG_CRUISE_S = 2.0
+LEG_WINDOW_S = 1.2
+#: the legs' speeds must differ by this much (m/s) on an axis for its drag to be read there
+LEG_MIN_DV = 0.5
+#: how long before a cruise window the commands are run through the model (s), from rest
+LEG_SETTLE_S = 1.0
 #: the fit: dead times searched (s), lags searched (s), the integration grid (s)
 MAX_DELAY_S = 0.3
 TAU_RANGE_S = (0.005, 1.0)
@@ -58,11 +73,13 @@ POLY = 4
 AXES = ("x", "y", "z")
 
 
-def doublets(position, yaw=0.0, amplitude=AMPLITUDE):
-    """The identification manoeuvre about ``position`` (NED)."""
+def doublets(position, yaw=0.0, amplitude=AMPLITUDE, leg_speed=LEG_SPEED):
+    """The identification manoeuvre about ``position`` (NED): the doublets, then the drag leg
+    at ``leg_speed`` (m/s north and east; 0: none)."""
     from .trajectories import Doublets
     return Doublets(position, amplitude=amplitude, half_period=HALF_PERIOD, repeats=REPEATS,
-                    rest=REST_S, yaw=yaw)
+                    rest=REST_S, yaw=yaw, leg=(leg_speed, leg_speed) if leg_speed else None,
+                    leg_ramp=LEG_RAMP_S, leg_cruise=LEG_CRUISE_S, leg_window=LEG_WINDOW_S)
 
 
 def _shifted_hold(t, u, grid, d):
@@ -75,9 +92,20 @@ def _shifted_hold(t, u, grid, d):
 class _AxisFit:
     """Least squares of one axis for given (tau, d)."""
 
-    def __init__(self, t, u, v, t0, t1, drag=None):
+    def __init__(self, t, u, v, t0, t1, drag=None, leg=None):
         self.t, self.u = t, u
         self.drag = None if drag is None else float(drag)  # fixed (1/s), or fitted (None)
+        # the drag leg's cruises [(t0, t1, mean speed, acceleration)] (leg_reading), when the
+        # drag is not fixed: c = k s1 - s0 with s1 from the commands as the model sees them
+        self.leg = None
+        if leg is not None and self.drag is not None:
+            leg = None
+        if leg is not None:
+            self.leg = [(np.arange(t0 - MAX_DELAY_S - LEG_SETTLE_S, t1 + FINE_S, FINE_S),
+                         t0, t1) for t0, t1, _, _ in leg]
+            (_, _, v1, a1), (_, _, v2, a2) = leg
+            self.leg_dv, self.leg_s0 = v1 - v2, (a1 - a2) / (v1 - v2)
+            self._leg_d, self._leg_held = None, None
         lead = t0 - MAX_DELAY_S - 0.05
         self.grid = np.arange(max(lead, t[0]), t1 + FINE_S, FINE_S)
         keep = (t >= t0) & (t <= t1)
@@ -107,6 +135,15 @@ class _AxisFit:
         # the modelled velocity change since the window began
         w = np.cumsum(y) * FINE_S
         w = w[self.at] - w[self.i0]
+        if self.leg is not None:  # c = k s1 - s0: k's column carries the drag's share
+            s1, s0 = self.leg_ratio(tau, d), self.leg_s0
+            target = self.vs - s0 * self.iv
+            A = np.column_stack([w - s1 * self.iv, *self.poly])
+            coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+            r = target - A @ coef
+            b = coef[2] / max(self.rel[-1], 1e-9)
+            return (float(r @ r), float(coef[0]), float(coef[1]), float(b),
+                    float(coef[0] * s1 - s0))
         if self.drag is not None:  # the drag known: its push moves to the measured side
             target = self.vs + self.drag * self.iv
             A = np.column_stack([w, *self.poly])
@@ -119,6 +156,21 @@ class _AxisFit:
         r = self.vs - A @ coef
         b = coef[3] / max(self.rel[-1], 1e-9)  # the disturbance's mean over the window
         return float(r @ r), float(coef[0]), float(coef[2]), float(b), float(coef[1])
+
+
+    def leg_ratio(self, tau, d):
+        """s1: the change between the leg's cruises of the commands as the model for (tau,
+        d) produces them, per m/s of the speeds' change."""
+        if d != self._leg_d:
+            self._leg_d = d
+            self._leg_held = [_shifted_hold(self.t, self.u, g, d) for g, _, _ in self.leg]
+        alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
+        means = []
+        for (g, t0, t1), y in zip(self.leg, self._leg_held):
+            for _ in range(ORDER):
+                y, _ = signal.lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
+            means.append(float(y[g >= t0].mean()))
+        return (means[0] - means[1]) / self.leg_dv
 
 
 def _search(fits):
@@ -151,7 +203,9 @@ def _record(f, tau, d):
     r2 = 1.0 - sse / var if var > 0.0 else 0.0
     ok = bool(r2 >= MIN_R2 and GAIN_RANGE[0] <= k <= GAIN_RANGE[1])
     return {"tau_s": tau, "delay_s": d, "lag_s": T63[ORDER] * tau + d, "gain": k,
-            "bias_mps2": b, "drag_per_s": c, "r2": r2, "rms_mps": math.sqrt(sse / f.ts.size),
+            "bias_mps2": b, "drag_per_s": c,
+            "drag_from": "told" if f.drag is not None else "leg" if f.leg is not None
+            else "fitted", "r2": r2, "rms_mps": math.sqrt(sse / f.ts.size),
             "samples": int(f.ts.size), "ok": ok}
 
 
@@ -169,6 +223,39 @@ def fit_axis(t, u, v, t0, t1):
     return _record(f, *_search([f]))
 
 
+def leg_reading(t, u, v, legs):
+    """What the drag leg says per horizontal axis: ``legs`` its two cruise windows [(t0, t1)]
+    in the samples' time (``u`` commands, ``v`` velocities at times ``t``).
+
+    At constant speed the model ``a = k L(u) - c v + b`` gives, averaged over each window
+    (``a`` the velocity's slope there), ``k L(u) = a + c v - b``; the wind's mean ``b`` is
+    common to both, so ``c = k s1 - s0`` with ``s1 = d L(u) / dv`` and ``s0 = da / dv`` between
+    the windows.  The commands hardly move there, so ``s1`` hardly depends on the response's
+    lag, but the fit takes it from its own ``L(u)`` (:class:`_AxisFit`).  Returns per axis (0,
+    1) a dict (the windows' mean speeds, accelerations and commands, and the ratio ``du / dv``
+    of the raw commands), or None where the speeds differ by less than :data:`LEG_MIN_DV` or a
+    window has too few samples."""
+    t, u, v = (np.asarray(a, dtype=float) for a in (t, u, v))
+    out = {}
+    for ax in (0, 1):
+        means = []
+        for t0, t1 in legs:
+            keep = (t >= t0) & (t <= t1) & np.isfinite(u[:, ax]) & np.isfinite(v[:, ax])
+            if keep.sum() < 10:
+                break
+            tk = t[keep] - t[keep].mean()
+            vk = v[keep, ax]
+            slope = float(tk @ (vk - vk.mean()) / (tk @ tk)) if tk @ tk > 0.0 else 0.0
+            means.append((float(u[keep, ax].mean()), float(vk.mean()), slope))
+        if len(means) != 2 or abs(means[0][1] - means[1][1]) < LEG_MIN_DV:
+            out[ax] = None
+            continue
+        (u1, v1, a1), (u2, v2, a2) = means
+        out[ax] = {"speed_mps": [v1, v2], "accel_mps2": [a1, a2], "command_mps2": [u1, u2],
+                   "ratio_per_s": (u1 - u2) / (v1 - v2)}
+    return out
+
+
 def fit(t, u, v, windows, shared_xy=True, drag=None):
     """Each axis of ``windows`` ([(axis, t0, t1)], as :class:`Doublets` gives them, in the
     samples' time) fitted as :func:`fit_axis` does; returns the identification record: per axis
@@ -183,14 +270,23 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
     ``drag``: (3,) the drag per axis when it is known (None entries, or None: fitted).  The
     doublets tell the drag poorly: it trades against the lag (on PX4 SIH the free fit gave
     0.22-0.29 s with 0.46-1.35 /s for SIH's 1 /s; with the drag learnt along the mission,
-    :mod:`mavadrc.learn`, the same samples gave 0.244-0.271 s)."""
+    :mod:`mavadrc.learn`, the same samples gave 0.244-0.271 s).  Windows of axis ``"leg"`` are
+    the drag leg's cruises (:func:`leg_reading`): where it reads an axis and ``drag`` does not
+    give it, the drag there is tied to the gain as the leg says (``drag_from: leg``)."""
     t, u, v = (np.asarray(a, dtype=float) for a in (t, u, v))
+    legs = [(t0, t1) for ax, t0, t1 in windows if ax == "leg"]
+    windows = [w for w in windows if w[0] != "leg"]
+    reading = leg_reading(t, u, v, legs) if len(legs) == 2 else {}
     fits = {}
     axes = {}
     for ax, t0, t1 in windows:
+        leg = reading.get(ax)
+        if leg is not None:
+            leg = [(a, b, sp, ac) for (a, b), sp, ac in zip(legs, leg["speed_mps"],
+                                                             leg["accel_mps2"])]
         try:
             fits[ax] = _AxisFit(t, u[:, ax], v[:, ax], t0, t1,
-                                None if drag is None else drag[ax])
+                                None if drag is None else drag[ax], leg)
         except ValueError as exc:
             axes[AXES[ax]] = {"ok": False, "error": str(exc)}
     groups = [[0, 1], [2]] if shared_xy and 0 in fits and 1 in fits else [[a] for a in fits]
@@ -205,6 +301,11 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
                     "fitted on velocity" + (", north and east together" if len(groups) == 2
                                              and len(groups[0]) == 2 else ""),
            "axes": {a: axes[a] for a in AXES if a in axes}}
+    if legs:
+        rec["leg"] = {AXES[ax]: (None if r is None else
+                                 {k: (round(x, 4) if isinstance(x, float) else
+                                      [round(y, 4) for y in x]) for k, x in r.items()})
+                      for ax, r in sorted(reading.items())} if reading else None
     if all(rec["axes"].get(a, {}).get("ok") for a in AXES):
         rec["input_lag"] = [round(rec["axes"][a]["lag_s"], 4) for a in AXES]
     return rec
@@ -264,10 +365,20 @@ def identification_mission(mission, calm=True):
                                attitude_bandwidth_scale=1.0, input_model_scale=1.0)
 
 
-def windows_in(phases, position=(0.0, 0.0, -ALTITUDE)):
-    """The axes' windows of the identify segment in mission time, from the mission's phases."""
+def windows_in(phases, position=(0.0, 0.0, -ALTITUDE), leg_speed=LEG_SPEED):
+    """The windows of the identify segment in mission time, from the mission's phases: the
+    axes' doublets, then the drag leg's cruises (axis ``"leg"``) when it flies one."""
     t_id = dict((name, t0) for t0, name in phases)["identify"]
-    return [(ax, t_id + a, t_id + b) for ax, a, b in doublets(position).windows]
+    d = doublets(position, leg_speed=leg_speed)
+    return ([(ax, t_id + a, t_id + b) for ax, a, b in d.windows]
+            + [("leg", t_id + a, t_id + b) for a, b in d.leg_windows])
+
+
+def leg_speed_of(mission):
+    """The drag leg's speed (m/s) of ``mission``'s identify segment (the default where it
+    places none)."""
+    return next((float(params.get("leg_speed", LEG_SPEED))
+                 for kind, params, _ in mission.segments if kind == "identify"), LEG_SPEED)
 
 
 _CACHE = {}

@@ -217,9 +217,9 @@ def _segment(kind, s, here, m):
         return [(T.Waypoints(pts, speed=s["speed"], yaw=_yaw(s, None), dwell=s.get("dwell", 0.0)),
                  "waypoints")]
     if kind == "identify":
-        from .identify import AMPLITUDE, doublets
-        return [(doublets(here, yaw=_yaw(s), amplitude=s.get("amplitude", AMPLITUDE)),
-                 "identify")]
+        from .identify import AMPLITUDE, LEG_SPEED, doublets
+        return [(doublets(here, yaw=_yaw(s), amplitude=s.get("amplitude", AMPLITUDE),
+                          leg_speed=s.get("leg_speed", LEG_SPEED)), "identify")]
     if kind == "named":
         over = dict(s.get("params", {}))
         traj = T.by_name(s["name"], **over)
@@ -296,11 +296,11 @@ _SEG_KEYS = {
     "waypoints": {"points": "points", "speed": "pos", "dwell": "nonneg", "yaw_deg": "num",
                   "yaw": "tangent"},
     "named": {"name": "str", "params": "map", "duration": "pos"},
-    "identify": {"amplitude": "pos", "yaw_deg": "num"},
+    "identify": {"amplitude": "pos", "yaw_deg": "num", "leg_speed": "nonneg"},
 }
 #: the largest value a segment key may take: sizes, speeds and durations a multirotor mission
 #: can mean (a typo such as a 1e9 s hover is refused before anything is computed)
-_MAX = {"amplitude": 3.0, "altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
+_MAX = {"amplitude": 3.0, "leg_speed": 3.0, "altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
         "period": 3600.0, "dwell": 3600.0, "laps": 1000.0, "z0": 1000.0, "omega": 10.0,
         "climb": 10.0, "climb_rate": 10.0}
 _REQUIRED = {

@@ -538,8 +538,8 @@ class Land(Waypoints):
 
 
 class Doublets(Trajectory):
-    """Acceleration doublets about a fixed point, one axis after the other: the excitation an
-    input model is identified from (:mod:`mavadrc.identify`).
+    """Acceleration doublets about a fixed point, one axis after the other, then optionally a
+    drag leg: the excitation an input model is identified from (:mod:`mavadrc.identify`).
 
     On each axis in ``axes`` (0 north, 1 east, 2 down) the acceleration is ``repeats`` times the
     pattern +A, -A, -A, +A, each held ``half_period`` s, then ``rest`` s of nothing before the
@@ -547,12 +547,22 @@ class Doublets(Trajectory):
     ``position`` after every doublet: the peak excursion is A half_period^2 and the peak
     speed A half_period (1 m/s^2, 0.4 s: 0.16 m, 0.4 m/s).  A controller tracking it commands
     the doublets as feed-forward, and its feedback has little to add.
+
+    ``leg``: (north, east) speed (m/s; None or zeros: no leg) of a horizontal leg out and back
+    after the doublets: up to speed in ``leg_ramp`` s at constant acceleration, ``leg_cruise``
+    s at that speed, through the reverse speed in twice the ramp, ``leg_cruise`` s back, to
+    rest in a ramp, then ``rest`` s still; it ends where it began.  At constant speed the
+    vehicle's commanded acceleration is its drag plus the wind, whatever its response's lag:
+    :attr:`leg_windows` (start, end) are the last ``leg_window`` s of each cruise, where it is
+    read.
     """
 
     PATTERN = (1.0, -1.0, -1.0, 1.0)
 
     def __init__(self, position, amplitude=(1.0, 1.0, 1.0), half_period: float = 0.4,
-                 repeats: int = 2, rest: float = 1.0, axes=(0, 1, 2), yaw: float = 0.0):
+                 repeats: int = 2, rest: float = 1.0, axes=(0, 1, 2), yaw: float = 0.0,
+                 leg=None, leg_ramp: float = 0.8, leg_cruise: float = 2.0,
+                 leg_window: float = 1.2):
         self.position = _vector("Doublets", "position", position, 3)
         amp = np.broadcast_to(np.asarray(amplitude, dtype=float), 3)
         if not np.all(np.isfinite(amp)) or np.any(amp <= 0.0):
@@ -576,7 +586,7 @@ class Doublets(Trajectory):
             pieces.append((t, int(ax), 0.0))
             t += rest
             self.windows.append((int(ax), t_ax, t))
-        self.duration = t
+        self.doublets_end = t
         self._t = np.array([p[0] for p in pieces])
         self._ax = np.array([p[1] for p in pieces])
         self._a = np.array([p[2] for p in pieces])
@@ -589,6 +599,29 @@ class Doublets(Trajectory):
                 self._p0[i] = self._p0[i - 1] + self._v0[i - 1] * d + 0.5 * self._a[i - 1] * d * d
         # rounding aside, every axis ends back at rest at its start
         self._v0[np.abs(self._v0) < 1e-12] = 0.0
+        self.leg = np.zeros(2) if leg is None else np.array(
+            _vector("Doublets", "leg", leg, 2), dtype=float)
+        self.leg_windows = []
+        if np.any(self.leg != 0.0):
+            r = _number("Doublets", "leg_ramp", leg_ramp, positive=True)
+            cruise = _number("Doublets", "leg_cruise", leg_cruise, positive=True)
+            w = min(_number("Doublets", "leg_window", leg_window, positive=True), cruise)
+            # the leg's acceleration (in units of leg / leg_ramp) from each time on
+            self._leg_t = t + np.cumsum([0.0, r, cruise, 2.0 * r, cruise, r])
+            self._leg_a = np.array([1.0, 0.0, -1.0, 0.0, 1.0, 0.0]) / r
+            v, p, v0, p0 = 0.0, 0.0, [], []
+            for k in range(len(self._leg_t)):
+                v0.append(v)
+                p0.append(p)
+                if k + 1 < len(self._leg_t):
+                    d = self._leg_t[k + 1] - self._leg_t[k]
+                    p += v * d + 0.5 * self._leg_a[k] * d * d
+                    v += self._leg_a[k] * d
+            self._leg_v0, self._leg_p0 = np.array(v0), np.array(p0)
+            self.leg_windows = [(self._leg_t[2] - w, self._leg_t[2]),
+                                (self._leg_t[4] - w, self._leg_t[4])]
+            t = self._leg_t[-1] + rest
+        self.duration = t
 
     def _eval(self, t):
         n = t.shape[0]
@@ -602,6 +635,22 @@ class Doublets(Trajectory):
         acc[rows, ax] = self._a[i]
         vel[rows, ax] = self._v0[i] + self._a[i] * d
         pos[rows, ax] += self._p0[i] + self._v0[i] * d + 0.5 * self._a[i] * d * d
+        if self.leg_windows:
+            on = t >= self.doublets_end
+            if on.any():
+                tl = np.minimum(t[on], self._leg_t[-1])
+                k = np.clip(np.searchsorted(self._leg_t, tl, side="right") - 1, 0,
+                            len(self._leg_t) - 1)
+                d = tl - self._leg_t[k]
+                a = self._leg_a[k] * (t[on] <= self._leg_t[-1])
+                s_v = self._leg_v0[k] + self._leg_a[k] * d
+                s_p = self._leg_p0[k] + self._leg_v0[k] * d + 0.5 * self._leg_a[k] * d * d
+                acc[on] = 0.0
+                vel[on] = 0.0
+                pos[on] = self.position
+                acc[on, :2] = np.outer(a, self.leg)
+                vel[on, :2] = np.outer(s_v, self.leg)
+                pos[on, :2] += np.outer(s_p, self.leg)
         return pos, vel, acc, np.full(n, self.yaw), np.zeros(n)
 
 

@@ -22,6 +22,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from mavadrc.control.position import PositionController  # noqa: E402
 from mavadrc.experiment import experiment_from_text  # noqa: E402
 from mavadrc.flight import resolve_gains  # noqa: E402
+from mavadrc.identify import doublets  # noqa: E402
 from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess  # noqa: E402
 from mavadrc.margin import delay_margin  # noqa: E402
 from mavadrc.mission import load_mission  # noqa: E402
@@ -55,7 +56,7 @@ def _px4_sih(path, tmp, extra="", drop_gains=False):
 def _after_settle(run, m):
     L = run.log
     t0 = dict((name, t) for t, name in run.phases).get("identify")
-    settle = m.settle_s + (12.6 if t0 is not None else 0.0)
+    settle = m.settle_s + (doublets(np.zeros(3)).duration if t0 is not None else 0.0)
     sel = L[:, L_T] >= settle
     e = np.linalg.norm(L[sel, L_POS:L_POS + 3] - L[sel, L_REF:L_REF + 3], axis=1)
     return float(e.max())
