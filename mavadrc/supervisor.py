@@ -14,6 +14,8 @@ interrupted          hold, then land   Ctrl-C: stop where it is, then come down
 link                 hold, then land   loss or a gap past ``safety`` limits
 stale                land              no telemetry: we cannot fly what we cannot see
 breach               land              geofence, altitude or speed limit
+ground               land              the autopilot says on the ground mid-mission:
+                                       the height estimate is off (or a collision)
 timeout              land              ``--timeout`` passed
 exception            land              an error in the companion itself
 touchdown_timeout    land              touchdown not seen in its bound
@@ -36,6 +38,7 @@ RULES = {
     "link": HOLD_THEN_LAND,
     "stale": LAND,
     "breach": LAND,
+    "ground": LAND,
     "timeout": LAND,
     "exception": LAND,
     "touchdown_timeout": LAND,

@@ -567,3 +567,23 @@ def test_summary_is_strict_json_even_when_nothing_flew(tmp_path):
 
     assert json.loads(text, parse_constant=refuse) == {"max_error_m": None, "ok": 2.0,
                                                        "rms": [1.0, None]}
+
+
+def test_the_autopilot_saying_on_the_ground_mid_mission_ends_the_flight(tmp_path):
+    """PX4 SIH, once: its height estimate drifted 0.7 m up over 20 s of the thesis spiral at
+    1.3 m, the vehicle sat on the ground for 8 s while the estimate read 1.3-1.6 m, and the
+    position loop lifted it off again, blind.  Here the bundled vehicle's estimate climbs
+    0.2 m/s through a hover at 1 m, so it meets the ground mid-hover: the autopilot's ON_GROUND
+    (after its IN_AIR) ends the flight with the autopilot's landing, and the summary says why
+    and does not call it a flown mission."""
+    mission = short_mission(tmp_path, hover=12, extra="sim: {height_drift_mps: 0.2}\n")
+    out = io.StringIO()
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+                          stream=out)
+    text = out.getvalue()
+    assert "the autopilot says the vehicle is on the ground" in text, text
+    assert any("on the ground" in why and "mid-mission" in why for why in summary["aborted"])
+    assert summary["disarmed"]
+    tab = read_table(folder / "controller.csv")
+    t_end = float(np.asarray(tab["t"])[-1])
+    assert t_end < 1.0 + 3.0 + 12.0  # ended before the hover's end
