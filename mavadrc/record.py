@@ -269,16 +269,20 @@ class Recorder:
         self.ref.append(r.pos)
         self.pos.append(s.pos)
 
-    def unscore_from_contact(self, window_s=3.0):
+    def unscore_from_contact(self, window_s=3.0, min_growth=0.0):
         """A vehicle resting on the ground stopped following the reference down where, within
         the last ``window_s`` of scored steps, the reference was least below it (down:
         reference minus position, smallest); the steps from there on no longer count in the
-        error figures (they stay in the table)."""
+        error figures (they stay in the table).  Left as they are when the reference's lead
+        grew by less than ``min_growth`` (m) from there to the last scored step (it was still
+        followed)."""
         if not self.t:
             return
         t = np.asarray(self.t)
         first = int(np.searchsorted(t, t[-1] - window_s, side="left"))
         lead = [r[2] - p[2] for r, p in zip(self.ref[first:], self.pos[first:])]
+        if lead[-1] - min(lead) < min_growth:
+            return
         keep = first + int(np.argmin(lead))
         del self.t[keep:], self.ref[keep:], self.pos[keep:]
 

@@ -427,6 +427,48 @@ def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     assert summary["touchdown_speed_mps"] < 0.5
 
 
+def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
+    """PX4 SIH, once: the estimate read 0.09 m high when the vehicle met the ground, still in
+    the land segment, and then climbed 0.2 m/s while it sat there; touchdown was seen by the
+    ground carrying its weight only after the land segment had ended, and the second between,
+    0.24 m of gap, was scored as the flight's largest error.  Here the samples drift 3 cm up
+    during the hover (the contact comes just before the land segment's end) and climb 0.2 m/s
+    from the contact on: the error figures end at the contact (the table keeps the rest;
+    scored, it read 0.19 m)."""
+    srv, link = lossy_vehicle(link_seed=16)
+    state = {"n": 0, "flew": False, "ground_ms": None}
+
+    def climbing(msg, direction):
+        if direction != "down":
+            return msg
+        kind = msg.get_type()
+        if kind == "EXTENDED_SYS_STATE":
+            return None
+        if kind == "LOCAL_POSITION_NED":
+            state["n"] += 1
+            msg.z -= 0.03 * min(1.0, max(0.0, (state["n"] - 300) / 100.0))
+            z = float(srv.vehicle.state[2])
+            state["flew"] = state["flew"] or z < -0.5
+            if state["flew"] and z > -0.02 and state["ground_ms"] is None:
+                state["ground_ms"] = msg.time_boot_ms
+            if state["ground_ms"] is not None:
+                msg.z -= 0.2 * (msg.time_boot_ms - state["ground_ms"]) / 1000.0
+                msg.vz -= 0.2
+        return msg
+
+    link.hook = climbing
+    try:
+        summary, folder, text = fly_through(link, short_mission(tmp_path, hover=3), tmp_path)
+    finally:
+        stop(srv, link)
+    assert state["ground_ms"] is not None
+    assert summary["landed"], (summary["aborted"], text)
+    tab = read_table(folder / "controller.csv")
+    gap = np.abs(np.asarray(tab["pos_z"]) - np.asarray(tab["ref_z"]))
+    assert gap.max() > 0.15  # logged: the climbing estimate against the reference
+    assert summary["max_error_m"] < 0.1
+
+
 def test_a_low_altitude_estimate_still_touches_down_slowly(tmp_path):
     """The estimate drifts 0.3 m low during the hover (PX4's was 0.29-0.38 m low): the land
     reference ends 0.3 m up, so the descent goes on until touchdown is seen."""
