@@ -179,7 +179,11 @@ class GroundPhases:
         self._grid = None
         if self._identifying():
             self._id_windows = windows_in(self.phases, leg_speed=leg_speed_of(self.m))
-            self._id_span = (self._id_windows[0][1], self._id_windows[-1][2])
+            # to the segment's end: the leg's last ramp and rest too, so the mission's
+            # controller takes over at rest, as after the doublets alone
+            t_id = dict((name, t0) for t0, name in self.phases)["identify"]
+            end = min((t0 for t0, _ in self.phases if t0 > t_id), default=self.traj.duration)
+            self._id_span = (self._id_windows[0][1], max(end, self._id_windows[-1][2]))
         self._mission_t0 = s.t
         self.mission_start = s.t
         self._lifted = self.takeover_in_air
