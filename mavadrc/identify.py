@@ -531,7 +531,8 @@ def model_yaml(rec, source):
         if "tau_s" in f:
             lines.append(f"#   {a}: tau {f['tau_s']:.4f} s, dead time {f['delay_s']:.4f} s, "
                          f"63 % time {f['lag_s']:.4f} s, gain {f['gain']:.3f}, drag "
-                         f"{f['drag_per_s']:.3f} /s, R2 {f['r2']:.4f}")
+                         f"{f['drag_per_s']:.3f} /s ({f.get('drag_from', 'fitted')}), "
+                         f"R2 {f['r2']:.4f}")
     lines += ["controller:",
               "  input_lag: [" + ", ".join(f"{x:.4f}" for x in rec["input_lag"]) + "]",
               "  drag: [" + ", ".join(f"{x:.4f}" for x in observer_drag(rec)) + "]"]
