@@ -389,6 +389,34 @@ def test_a_height_estimate_drifting_up_lands_early_judged_at_contact_and_unscore
     assert summary["max_error_m"] < 0.08  # scored: the flight only
 
 
+def _moving_on_the_ground(srv, rate, drift=0.0):
+    """A link hook (and its state) for the bundled vehicle ``srv``: no EXTENDED_SYS_STATE (the
+    autopilot never says ON_GROUND), the samples' height ``drift`` m up from about the 300th
+    sample on (over 100), and from the moment the vehicle, having flown, is on the ground, its
+    estimate moving ``rate`` m/s (down, as NED: > 0 sinks, < 0 climbs)."""
+    state = {"n": 0, "flew": False, "ground_ms": None}
+
+    def hook(msg, direction):
+        if direction != "down":
+            return msg
+        kind = msg.get_type()
+        if kind == "EXTENDED_SYS_STATE":
+            return None
+        if kind == "LOCAL_POSITION_NED":
+            state["n"] += 1
+            msg.z -= drift * min(1.0, max(0.0, (state["n"] - 300) / 100.0))
+            z = float(srv.vehicle.state[2])
+            state["flew"] = state["flew"] or z < -0.5
+            if state["flew"] and z > -0.02 and state["ground_ms"] is None:
+                state["ground_ms"] = msg.time_boot_ms
+            if state["ground_ms"] is not None:
+                msg.z += rate * (msg.time_boot_ms - state["ground_ms"]) / 1000.0
+                msg.vz += rate
+        return msg
+
+    return hook, state
+
+
 def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     """PX4 SIH, once: sitting on the ground its estimate read a 0.25-0.5 m/s descent, and its
     land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound ("touchdown
@@ -398,25 +426,7 @@ def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     the autopilot never says ON_GROUND: the ground carrying the vehicle's weight (the vertical
     disturbance estimate near -g with the thrust down) shows the touchdown."""
     srv, link = lossy_vehicle(link_seed=15)
-    state = {"flew": False, "ground_ms": None}
-
-    def sinking(msg, direction):
-        if direction != "down":
-            return msg
-        kind = msg.get_type()
-        if kind == "EXTENDED_SYS_STATE":
-            return None
-        if kind == "LOCAL_POSITION_NED":
-            z = float(srv.vehicle.state[2])
-            state["flew"] = state["flew"] or z < -0.5
-            if state["flew"] and z > -0.02 and state["ground_ms"] is None:
-                state["ground_ms"] = msg.time_boot_ms
-            if state["ground_ms"] is not None:
-                msg.z += 0.15 * (msg.time_boot_ms - state["ground_ms"]) / 1000.0
-                msg.vz += 0.15
-        return msg
-
-    link.hook = sinking
+    link.hook, state = _moving_on_the_ground(srv, 0.15)
     try:
         summary, _, text = fly_through(link, short_mission(tmp_path, hover=2), tmp_path)
     finally:
@@ -436,27 +446,7 @@ def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     from the contact on: the error figures end at the contact (the table keeps the rest;
     scored, it read 0.19 m)."""
     srv, link = lossy_vehicle(link_seed=16)
-    state = {"n": 0, "flew": False, "ground_ms": None}
-
-    def climbing(msg, direction):
-        if direction != "down":
-            return msg
-        kind = msg.get_type()
-        if kind == "EXTENDED_SYS_STATE":
-            return None
-        if kind == "LOCAL_POSITION_NED":
-            state["n"] += 1
-            msg.z -= 0.03 * min(1.0, max(0.0, (state["n"] - 300) / 100.0))
-            z = float(srv.vehicle.state[2])
-            state["flew"] = state["flew"] or z < -0.5
-            if state["flew"] and z > -0.02 and state["ground_ms"] is None:
-                state["ground_ms"] = msg.time_boot_ms
-            if state["ground_ms"] is not None:
-                msg.z -= 0.2 * (msg.time_boot_ms - state["ground_ms"]) / 1000.0
-                msg.vz -= 0.2
-        return msg
-
-    link.hook = climbing
+    link.hook, state = _moving_on_the_ground(srv, -0.2, drift=0.03)
     try:
         summary, folder, text = fly_through(link, short_mission(tmp_path, hover=3), tmp_path)
     finally:
