@@ -98,11 +98,11 @@ class _AxisFit:
         # the drag leg's cruises [(t0, t1, mean speed, acceleration)] (leg_reading), when the
         # drag is not fixed: c = k s1 - s0 with s1 from the commands as the model sees them
         self.leg = None
-        if leg is not None and self.drag is not None:
-            leg = None
-        if leg is not None:
-            self.leg = [(np.arange(t0 - MAX_DELAY_S - LEG_SETTLE_S, t1 + FINE_S, FINE_S),
-                         t0, t1) for t0, t1, _, _ in leg]
+        if leg is not None and self.drag is None:
+            # per cruise: the model's grid from LEG_SETTLE_S before it, and where it begins
+            grids = [np.arange(a - MAX_DELAY_S - LEG_SETTLE_S, b + FINE_S, FINE_S)
+                     for a, b, _, _ in leg]
+            self.leg = [(g, int(np.searchsorted(g, a))) for g, (a, _, _, _) in zip(grids, leg)]
             (_, _, v1, a1), (_, _, v2, a2) = leg
             self.leg_dv, self.leg_s0 = v1 - v2, (a1 - a2) / (v1 - v2)
             self._leg_d, self._leg_held = None, None
@@ -157,19 +157,18 @@ class _AxisFit:
         b = coef[3] / max(self.rel[-1], 1e-9)  # the disturbance's mean over the window
         return float(r @ r), float(coef[0]), float(coef[2]), float(b), float(coef[1])
 
-
     def leg_ratio(self, tau, d):
         """s1: the change between the leg's cruises of the commands as the model for (tau,
         d) produces them, per m/s of the speeds' change."""
         if d != self._leg_d:
             self._leg_d = d
-            self._leg_held = [_shifted_hold(self.t, self.u, g, d) for g, _, _ in self.leg]
+            self._leg_held = [_shifted_hold(self.t, self.u, g, d) for g, _ in self.leg]
         alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
         means = []
-        for (g, t0, t1), y in zip(self.leg, self._leg_held):
+        for (_, i0), y in zip(self.leg, self._leg_held):
             for _ in range(ORDER):
                 y, _ = signal.lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
-            means.append(float(y[g >= t0].mean()))
+            means.append(float(y[i0:].mean()))
         return (means[0] - means[1]) / self.leg_dv
 
 
@@ -301,11 +300,9 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
                     "fitted on velocity" + (", north and east together" if len(groups) == 2
                                              and len(groups[0]) == 2 else ""),
            "axes": {a: axes[a] for a in AXES if a in axes}}
-    if legs:
-        rec["leg"] = {AXES[ax]: (None if r is None else
-                                 {k: (round(x, 4) if isinstance(x, float) else
-                                      [round(y, 4) for y in x]) for k, x in r.items()})
-                      for ax, r in sorted(reading.items())} if reading else None
+    if reading:
+        rec["leg"] = {AXES[ax]: None if r is None else {
+            k: np.round(x, 4).tolist() for k, x in r.items()} for ax, r in reading.items()}
     if all(rec["axes"].get(a, {}).get("ok") for a in AXES):
         rec["input_lag"] = [round(rec["axes"][a]["lag_s"], 4) for a in AXES]
     return rec
