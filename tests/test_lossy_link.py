@@ -412,8 +412,8 @@ def test_with_the_vehicle_nan_sample_and_first_arm_ack_lost():
     try:
         c.heartbeat()
         assert link.vehicle_addr == ("127.0.0.1", srv.local_ports["offboard"])
-        link.inject_nan(nth=3, fields=("x",), after="now")
-        n0 = link.forwarded()
+        n0 = link.forwarded()  # read before the injection counts from "now": a sample
+        link.inject_nan(nth=3, fields=("x",), after="now")  # between them is not missed
         m = c.recv("LOCAL_POSITION_NED", 2.0, cond=lambda m: math.isnan(m.x))
         assert m is not None and m.get_srcSystem() == 1
         assert link.forwarded() - n0 >= 3 and link.down.stats.frames_modified == 1
