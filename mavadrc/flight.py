@@ -52,8 +52,8 @@ from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .control import kernels as K
 from .control.position import IN_STATE, THRUST_ESTIMATE_S
-from .identify import (MAX_DELAY_S, failure_text, fit_flight, needs_identification,
-                       design_lag, observer_drag, observer_lag, response_margin, summary_line)
+from .identify import (MAX_DELAY_S, design_lag, failure_text, fit_flight, needs_identification,
+                       observer_drag, observer_lag, partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -143,6 +143,10 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     slower than the one they were chosen for (``designed_for``: its lags; None: not known).  Given as a mission's controller, they fly the same controller
     again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
+    # an axis the identification could not fit (None): flown on the safe gains with no model
+    safe = [] if identified is None else [i for i, x in enumerate(identified) if x is None]
+    if safe:
+        identified = tuple(0.0 if x is None else x for x in identified)
     given = dict(spec.gains) if kind == spec.kind else {}
     if kind in ("ladrc", "adrc"):
         # the vehicle's response and the samples' age, not gains: they hold for any observer
@@ -182,7 +186,23 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
                               "mavadrc.identify.with_identified on the fast path, or by "
                               "`mavadrc identify`; otherwise give the lags in seconds")
         gains["input_lag"] = tuple(float(x) for x in identified)
+    if safe and kind in ("ladrc", "adrc"):
+        gains = _safe_axes(gains, safe)
     return gains
+
+
+def _safe_axes(gains, axes):
+    """``gains`` with the axes ``axes`` (indices) flown as the safe default LADRC flies them
+    (:data:`SAFE_WC`, :data:`SAFE_WO`, no input model, no drag): stable on any response of
+    0.03-0.3 s with no model (README, "Safe defaults and the delay margin")."""
+    out = dict(gains)
+    for key, value in (("wc", SAFE_WC), ("wo", SAFE_WO), ("input_lag", 0.0), ("drag", 0.0)):
+        if key in out and not isinstance(out[key], str):
+            row = [float(x) for x in np.broadcast_to(np.asarray(out[key], dtype=float), 3)]
+            for i in axes:
+                row[i] = value
+            out[key] = tuple(row)
+    return out
 
 
 #: the share of the identified horizontal lag the default gains keep as delay margin (on the
@@ -649,6 +669,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._warn_once("identify", f"{failure_text(rec)}: the safe default LADRC flies the "
                                         "rest of the mission", every=0.0)
             return
+        if partial_text(rec) is not None:
+            self._warn_once("identify", partial_text(rec), every=0.0)
         old = self.ctrl
         self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
         carry_over(self.ctrl, old, s.pos, s.vel)

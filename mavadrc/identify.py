@@ -303,9 +303,32 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
     if reading:
         rec["leg"] = {AXES[ax]: None if r is None else {
             k: np.round(x, 4).tolist() for k, x in r.items()} for ax, r in reading.items()}
-    if all(rec["axes"].get(a, {}).get("ok") for a in AXES):
-        rec["input_lag"] = [round(rec["axes"][a]["lag_s"], 4) for a in AXES]
+    ok = [bool(rec["axes"].get(a, {}).get("ok")) for a in AXES]
+    if ok[0] and ok[1]:
+        # the vertical alone failing (on PX4 SIH once: gain -19, its height estimate drifting
+        # through the doublets) leaves the horizontal model good: the vertical flies the safe
+        # gains, with no model (unidentified_axes)
+        rec["input_lag"] = [round(rec["axes"][a]["lag_s"], 4) if k else 0.0
+                            for a, k in zip(AXES, ok)]
+        if not ok[2]:
+            rec["unidentified"] = ["z"]
     return rec
+
+
+def unidentified_axes(rec):
+    """The axes an identification that gives an input model could not fit (flown on the safe
+    default gains with no model; :func:`mavadrc.flight.resolve_gains`)."""
+    return list(rec.get("unidentified", ()))
+
+
+def partial_text(rec):
+    """Why an axis of an identification that gives a model flies without one (None: none)."""
+    bad = unidentified_axes(rec)
+    if not bad:
+        return None
+    return (f"the input model could not be identified on axis {', '.join(bad)} (R2 < {MIN_R2} "
+            f"or gain outside {GAIN_RANGE[0]}-{GAIN_RANGE[1]}): that axis flies the safe default "
+            "gains with no input model, the others the mission's with the model identified")
 
 
 def summary_line(rec):
@@ -425,7 +448,9 @@ def observer_lag(rec, spec):
     identification for ``auto``, the seconds given otherwise)."""
     lat = spec.gains.get("latency", 0.0)
     age = rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
-    return tuple(max(float(x) - age, 0.0) for x in rec["input_lag"])
+    bad = unidentified_axes(rec)
+    return tuple(None if a in bad else max(float(x) - age, 0.0)
+                 for a, x in zip(AXES, rec["input_lag"]))
 
 
 def design_lag(mission):
@@ -438,7 +463,7 @@ def design_lag(mission):
         return None
     m = dataclasses.replace(mission, link=None, sensor_latency_s=0.0, noise=False)
     rec = identify_inprocess(m, 0)
-    if "input_lag" not in rec:
+    if "input_lag" not in rec or unidentified_axes(rec):
         return None
     return observer_lag(rec, dataclasses.replace(mission.controller,
                                                  gains={**mission.controller.gains,
@@ -463,8 +488,10 @@ def response_margin(ctrl, rec, spec):
 
 def observer_drag(rec):
     """The linear drag (1/s per axis) of an identification for the observers' model (``drag:
-    auto``): the fit's ``c``, none where it came out negative."""
-    return tuple(max(float(rec["axes"][a]["drag_per_s"]), 0.0) for a in AXES)
+    auto``): the fit's ``c``, none where it came out negative or the axis was not identified."""
+    bad = unidentified_axes(rec)
+    return tuple(0.0 if a in bad else max(float(rec["axes"][a]["drag_per_s"]), 0.0)
+                 for a in AXES)
 
 
 def needs_identification(spec, kind=None):
@@ -578,8 +605,10 @@ def main(args):
         return fail("the flight ended before the identification was flown: "
                     + "; ".join(summary.get("aborted") or ["see the record"])
                     + f" (record in {folder})", 1)
-    if "input_lag" not in rec:
-        return fail(f"{failure_text(rec)}: {summary_line(rec)} (record in {folder})", 1)
+    if "input_lag" not in rec or unidentified_axes(rec):
+        # a file with no model on an axis would fly it on the mission's gains, not the safe ones
+        why = failure_text(rec) or partial_text(rec).split(":")[0]
+        return fail(f"{why}: {summary_line(rec)} (record in {folder})", 1)
     text = model_yaml(rec, f"mission {Path(mission.source).name}"
                       + (f", {args.connect}" if args.connect else
                          f", bundled {mission.vehicle or 'crazyflie'}"))

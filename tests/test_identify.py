@@ -348,3 +348,64 @@ def test_the_leg_ties_the_drag_to_the_gain_on_a_plant_whose_lag_it_does_not_know
     assert f["lag_s"] == pytest.approx(t63(0.1, 0.04, 2), rel=0.05)
     accel = rec["leg"]["x"]["accel_mps2"]
     assert accel[0] > 0.05 and accel[1] < -0.2  # the plant still speeding up in both cruises
+
+
+def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, monkeypatch,
+                                                                       capsys):
+    """On PX4 SIH the vertical fit once came out with gain -19 (its height estimate drifting
+    through the doublets) while north and east fitted with R2 0.999: the whole mission then flew
+    the safe gains, 1.11 m off its figure eight.  Now the vertical alone flies the safe gains
+    with no model, north and east the mission's with the model identified.  Here the vertical
+    velocities the fit reads are replaced by noise (the flight itself is untouched)."""
+    import mavadrc.flight as F
+    from mavadrc.flight import SAFE_WC, SAFE_WO
+    real = F.fit_flight
+
+    def scrambled(t, u, v, *args, **kw):
+        v = np.array(v, dtype=float)
+        v[:, 2] = np.random.default_rng(0).normal(0.0, 0.3, len(v))
+        return real(t, u, v, *args, **kw)
+
+    monkeypatch.setattr(F, "fit_flight", scrambled)
+    code = main(["fly", "configs/missions/thesis_spiral_wind.yaml", "--lockstep", "--out",
+                 str(tmp_path), "--no-figures", "-q"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "could not be identified on axis z" in out
+    folder = next(p for p in Path(tmp_path).iterdir() if p.is_dir())
+    s = json.loads((folder / "summary.json").read_text())
+    rec = s["identification"]
+    assert rec["unidentified"] == ["z"] and not rec["axes"]["z"]["ok"]
+    flown = s["controller_flown"]
+    # north and east: the mission's gains (its vehicle, so not slowed) with the model
+    assert flown["wc"][:2] == [4.0, 4.0] and flown["wo"][:2] == [23.9, 23.9]
+    assert flown["input_lag"][0] == pytest.approx(rec["input_lag"][0], abs=0.02)
+    assert flown["input_lag"][0] > 0.05
+    # the vertical: the safe default, no model
+    assert flown["wc"][2] == SAFE_WC and flown["wo"][2] == SAFE_WO and flown["input_lag"][2] == 0
+    assert s["landed"]
+    # the spiral within 0.043 m here (0.036 with every axis identified): the vertical's slower
+    # loop costs a little
+    assert s["after_settle"]["max_error_m"] < 0.08
+    assert any("could not be identified on axis z" in w for w in s["warnings"])
+
+
+def test_mavadrc_identify_refuses_to_write_a_model_missing_an_axis(tmp_path, monkeypatch, capsys):
+    """A file with no vertical model would fly the vertical on a mission's own gains with no
+    model, not the safe ones: ``mavadrc identify`` says which axis failed and writes nothing."""
+    import mavadrc.flight as F
+    real = F.fit_flight
+
+    def scrambled(t, u, v, *args, **kw):
+        v = np.array(v, dtype=float)
+        v[:, 2] = np.random.default_rng(0).normal(0.0, 0.3, len(v))
+        return real(t, u, v, *args, **kw)
+
+    monkeypatch.setattr(F, "fit_flight", scrambled)
+    target = tmp_path / "model.yaml"
+    code = main(["identify", "--lockstep", "--out", str(tmp_path), "--write", str(target),
+                 "--no-figures", "-q"])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "could not be identified on axis z" in captured.out + captured.err
+    assert not target.exists()
