@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from .control import kernels as K
-from .control.position import IN_ALPHA, IN_TAU
+from .control.position import IN_ALPHA, IN_ND, IN_NLAG, IN_TAU
 
 #: the longest extra delay searched (s)
 MAX_EXTRA_S = 1.0
@@ -66,7 +66,12 @@ class _Loop:
     def __init__(self, ctrl, tau, n, known=None, feedforward=False, order=1):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
+        # the observers' input model, as position_update runs it: a dead time of ``md`` steps
+        # and ``ml`` lags (alpha per step)
         self.alpha = float(ctrl._IN[0, IN_ALPHA])
+        self.ml = int(ctrl._IN[0, IN_NLAG])
+        self.md = int(ctrl._IN[0, IN_ND])
+        self.nm = self.ml + self.md  # its states: the dead time's commands, then each lag's
         self.A, self.B = _plant(tau, self.h, order)
         self.nx = self.B.size
         self.n = n
@@ -75,7 +80,7 @@ class _Loop:
         # channel state, input model, plant, command buffer; with a delay line, the delayed
         # estimate and the inputs applied over the known delay too
         self.line = 0 if known is None else 3 + known + 1
-        self.size = self.ns + 1 + self.nx + n + self.line
+        self.size = self.ns + self.nm + self.nx + n + self.line
         self.feedforward = feedforward
         h = self.h
         self.Bd = np.zeros(self.nx)  # a held disturbance acceleration
@@ -104,16 +109,25 @@ class _Loop:
         return u, row[:self.ns].copy(), np.concatenate([row[K.DL_Z1:K.DL_Z1 + 3], inputs])
 
     def step(self, z, d=0.0):
-        ns, n = self.ns, self.n
+        ns, n, nm = self.ns, self.n, self.nm
         s = z[:ns].copy()
-        obs = z[ns]
+        model = z[ns:ns + nm].copy()
         nx = self.nx
-        x = z[ns + 1:ns + 1 + nx]
-        buf = z[ns + 1 + nx:ns + 1 + nx + n]
-        line = z[ns + 1 + nx + n:]
+        x = z[ns + nm:ns + nm + nx]
+        buf = z[ns + nm + nx:ns + nm + nx + n]
+        line = z[ns + nm + nx + n:]
         y, ydot = x[0], x[1]
         u, s, line = self._channel(s, line, y, ydot, -d if self.feedforward else 0.0)
-        obs = obs + self.alpha * (u - obs)  # the observers' input model, as position_update
+        # the observers' input model, as position_update runs it
+        xin = u
+        if self.md:
+            xin = model[self.md - 1]
+            model[1:self.md] = model[:self.md - 1].copy()
+            model[0] = u
+        for k in range(self.md, nm):
+            model[k] = model[k] + self.alpha * (xin - model[k])
+            xin = model[k]
+        obs = xin
         s[K.S_U] = obs
         if self.known is not None:
             line[-1] = obs
@@ -123,7 +137,7 @@ class _Loop:
         else:
             applied = u
         x = self.A @ x + self.B * applied + self.Bd * d
-        return np.concatenate([s, [obs], x, buf, line])
+        return np.concatenate([s, model, x, buf, line])
 
     def linearised(self):
         """(J, b, c) of the loop linearised at rest: z' = J z + b d, position = c z, over the
@@ -150,7 +164,7 @@ class _Loop:
                 if not (abs(J[j, j] - 1.0) < 1e-9 and np.count_nonzero(np.abs(J[j]) > 1e-9) == 1
                         and np.count_nonzero(np.abs(J[:, j]) > 1e-9) == 1)]
         c = np.zeros(self.size)
-        c[self.ns + 1] = 1.0  # the plant's position
+        c[self.ns + self.nm] = 1.0  # the plant's position
         return J[np.ix_(keep, keep)], b[keep], c[keep]
 
     def radius(self):
@@ -178,13 +192,24 @@ def _delay(ctrl, delay):
     return latency if isinstance(latency, float) else 0.0
 
 
+def _own(ctrl, tau, delay, order):
+    """The plant (tau, delay, order): as given, or where ``tau`` is None the controller's own
+    input model (its lags, and its dead time added to the delay)."""
+    delay = _delay(ctrl, delay)
+    if tau is not None:
+        return float(tau), delay, order
+    h = float(ctrl._P[0, K.P_H])
+    return (float(ctrl._IN[0, IN_TAU]), delay + h * int(ctrl._IN[0, IN_ND]),
+            int(ctrl._IN[0, IN_NLAG]))
+
+
 def spectral_radius(ctrl, tau=None, delay=None, order=1):
     """The linearised closed loop's spectral radius (< 1: stable) on the plant (``order`` equal
-    lags ``tau`` s, default one: the controller's own input model; ``delay`` s, rounded to
-    samples, default the one the controller assumes: its ``latency`` if a number, else none)."""
-    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    lags ``tau`` s, default: the controller's own input model, its dead time included;
+    ``delay`` s, rounded to samples, default the one the controller assumes: its ``latency`` if
+    a number, else none)."""
+    tau, delay, order = _own(ctrl, tau, delay, order)
     h = float(ctrl._P[0, K.P_H])
-    delay = _delay(ctrl, delay)
     return _Loop(ctrl, tau, int(round(delay / h)), _known(ctrl, delay, h),
                  order=order).radius()
 
@@ -200,9 +225,8 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     :mod:`mavadrc.identify`).
     ``ctrl``: a :class:`mavadrc.control.position.PositionController`, at rest or not (its state
     is not touched)."""
-    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    tau, delay, order = _own(ctrl, tau, delay, order)
     h = float(ctrl._P[0, K.P_H])
-    delay = _delay(ctrl, delay)
     n0 = int(round(delay / h))
     known = _known(ctrl, delay, h, known_s)
     if _Loop(ctrl, tau, n0, known, order=order).radius() >= 1.0:
@@ -215,15 +239,16 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     return math.inf
 
 
-def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False):
+def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False, order=1):
     """|G_d(j w)|: the position error (m) per m/s^2 of a sinusoidal disturbance acceleration at
     each angular frequency of ``omegas`` (rad/s), the loop linearised at rest on the plant (lag
-    ``tau``, default the controller's input model; ``delay`` s) and sampled at its step;
+    ``tau``, ``order`` of them, default the controller's input model; ``delay`` s) and sampled
+    at its step;
     ``feedforward``: the disturbance also fed forward (the oracle).  NaN where the loop is
     unstable (it has no steady response)."""
-    tau = float(ctrl._IN[0, IN_TAU]) if tau is None else float(tau)
+    tau, delay, order = _own(ctrl, tau, delay, order)
     loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))),
-                 feedforward=feedforward)
+                 feedforward=feedforward, order=order)
     J, b, c = loop.linearised()
     omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
     if max(abs(np.linalg.eigvals(J))) >= 1.0:

@@ -384,6 +384,22 @@ def _read_controller(sec, kinds=None):
             c.gains["input_lag"] = sec.string("input_lag")
         else:
             c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
+    if sec.has("input_dead_time") or sec.has("input_lags"):
+        # the input model shaped as identified: a dead time, then input_lags equal lags
+        # sharing the rest of input_lag (its 63 % time)
+        key = "input_dead_time" if sec.has("input_dead_time") else "input_lags"
+        sec.check(key, isinstance(c.gains.get("input_lag"), tuple),
+                  "shapes the input model: give input_lag in seconds too")
+        if sec.has("input_dead_time"):
+            c.gains["input_dead_time"] = tuple(float(x) for x in sec.vector(
+                "input_dead_time", 3, scalar_ok=True, ge=0.0))
+            sec.check("input_dead_time", all(d <= t for d, t in zip(
+                c.gains["input_dead_time"], c.gains["input_lag"])),
+                "the dead time is part of input_lag (its 63 % time): at most input_lag")
+        if sec.has("input_lags"):
+            n = sec.number("input_lags")
+            sec.check("input_lags", n in (1, 2), f"must be 1 or 2 (got {n!r})")
+            c.gains["input_lags"] = int(n)
     if sec.has("drag"):
         # the vehicle's linear drag (1/s per axis) in the observers' model: auto (identified
         # with input_lag: auto, the default then), numbers, or 0 (none)

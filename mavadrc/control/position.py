@@ -19,13 +19,23 @@ from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params, pid
 AXES = ("x", "y", "z")
 
 # the observers' input model, one row per axis (see ``input_lag``)
-IN_ALPHA = 0  # 1 - exp(-h/tau) at the nominal step (1: no lag)
-IN_STATE = 1  # the lag's output: the acceleration the observer is fed
-IN_TAU = 2  # the lag's time constant (s; 0: none)
-IN_DIFF = 3  # last command minus the lag's output before it (to redo the last advance)
+IN_ALPHA = 0  # 1 - exp(-h/tau) at the nominal step, per lag (1: no lag)
+IN_STATE = 1  # the last lag's output: the acceleration the observer is fed
+IN_TAU = 2  # each lag's time constant (s; 0: none)
+IN_DIFF = 3  # the last lag's input minus its output before the last advance (to redo it)
 IN_DRAG = 4  # the vehicle's linear drag (1/s; 0: none): a = u - drag * v + disturbance
+IN_NLAG = 5  # how many equal lags (1 or 2: input_lags)
+IN_L1 = 6  # with two lags, the first one's output
+IN_DIFF1 = 7  # with two lags, the first one's input minus its output before the last advance
+IN_ND = 8  # the dead time before the lags, in nominal steps (input_dead_time)
+IN_HEAD = 9  # the slot of the dead time's ring of commands read and written next
+IN_LEAD = 10  # s: the model's mean delay (dead time + lags x tau): the feed-forward's lead
+IN_BUF = 11  # the ring of the last IN_ND commands
+DEAD_MAX = 80  # the longest dead time, in steps (0.32 s at 250 Hz, 0.8 s at 100 Hz)
+NIN = IN_BUF + DEAD_MAX
+#: the 63 % time of n equal first-order lags, in units of their time constant (n = 1, 2)
+LAG63 = (0.0, 1.0, 2.1462)
 DRAG_MAX = 20.0  # the most drag (1/s per axis) a model may give, learnt or told
-NIN = 5
 
 
 @jit
@@ -71,7 +81,14 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
                 hs = P[0, K.P_H]
         tau = IN[i, IN_TAU]
         if hs != P[0, K.P_H] and tau > 0.0:
-            da = (-math.expm1(-hs / tau) - IN[i, IN_ALPHA]) * IN[i, IN_DIFF]
+            corr = -math.expm1(-hs / tau) - IN[i, IN_ALPHA]
+            da = corr * IN[i, IN_DIFF]
+            if IN[i, IN_NLAG] >= 2.0:
+                # the first lag's advance redone too, and (to first order) what its change
+                # did to the second's
+                d1 = corr * IN[i, IN_DIFF1]
+                IN[i, IN_L1] += d1
+                da += (IN[i, IN_ALPHA] + corr) * d1
             IN[i, IN_STATE] += da
             K.set_applied_input(S[i], S[i, K.S_U] + da)
     # the drag the model knows is fed forward along the reference (the observers see it as
@@ -89,9 +106,11 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
         a2 = K.channel_update(S[2], P[2], pos[2], vel[2], rpos[2], rvel[2], f2, hh)
     G.accel_to_attitude(a0, a1, a2, yaw, M, out)
     for i in range(3):
-        # the observers' input: the limited command through the input model (a first-order
-        # lag standing for the vehicle's attitude and motor response; alpha 1 = none)
-        diff = out[G.O_ACC + i] - IN[i, IN_STATE]
+        # the observers' input: the limited command through the input model (a dead time and
+        # one or two first-order lags standing for the vehicle's attitude and motor response;
+        # alpha 1 and no dead time = none)
+        x = input_model_advance(IN[i], out[G.O_ACC + i])
+        diff = x - IN[i, IN_STATE]
         IN[i, IN_DIFF] = diff
         IN[i, IN_STATE] += IN[i, IN_ALPHA] * diff
         # and the drag along the reference, fed forward above, as known
@@ -100,6 +119,38 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     out[G.NO + 1] = a1
     out[G.NO + 2] = a2
     return True
+
+
+@jit
+def input_model_advance(row, command):
+    """The input model's row ``row`` (IN_* columns) taking ``command``: the dead time's ring
+    advanced and, with two lags, the first lag; returns the last lag's input (the caller
+    advances it)."""
+    x = command
+    nd = int(row[IN_ND])
+    if nd > 0:
+        head = int(row[IN_HEAD])
+        x = row[IN_BUF + head]  # the command of nd steps ago
+        row[IN_BUF + head] = command
+        row[IN_HEAD] = (head + 1) % nd
+    if row[IN_NLAG] >= 2.0:
+        d1 = x - row[IN_L1]
+        row[IN_DIFF1] = d1
+        row[IN_L1] += row[IN_ALPHA] * d1
+        x = row[IN_L1]
+    return x
+
+
+@jit
+def input_model_rest(row, a):
+    """The input model's row at rest with ``a`` applied all along (every stage holds it)."""
+    row[IN_STATE] = a
+    row[IN_L1] = a
+    row[IN_DIFF] = 0.0
+    row[IN_DIFF1] = 0.0
+    row[IN_HEAD] = 0.0
+    for k in range(DEAD_MAX):
+        row[IN_BUF + k] = a
 
 
 #: the thrust per acceleration learnt in flight stays within this factor of the figure told
@@ -150,8 +201,7 @@ def position_start(S, P, IN, pos, vel):
     """Start the three channels now at ``pos`` (and rate estimates at ``vel``; NaN entries: 0),
     with the input model at rest (see :func:`kernels.channel_start`)."""
     for i in range(3):
-        IN[i, IN_STATE] = 0.0
-        IN[i, IN_DIFF] = 0.0
+        input_model_rest(IN[i], 0.0)
         S[i, :] = 0.0
         K.channel_start(S[i], P[i], pos[i], vel[i])
 
@@ -260,6 +310,12 @@ class PositionController:
     sample (none given: 0); a number of seconds, every sample's age; 0 or None, not compensated
     (the sample is taken as now's).  Either way the reference :meth:`update` is given must be
     the one for now.
+
+    ``input_lag`` ('ladrc' and 'adrc'; s per axis): the observers' input model, the time the
+    vehicle's acceleration takes to reach 63 % of a step commanded.  Alone, one first-order lag
+    of that time constant.  With ``input_dead_time`` (s per axis) and ``input_lags`` (1 or 2)
+    it is shaped as identified in flight: the dead time (whole steps) and then that many equal
+    lags sharing the rest of the 63 % time.  ``drag`` (1/s per axis): the linear drag modelled.
     """
 
     def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
@@ -269,12 +325,27 @@ class PositionController:
         self.latency = check_latency(latency, kind)
         self._IN = np.zeros((3, NIN))
         self._IN[:, IN_ALPHA] = 1.0
+        self._IN[:, IN_NLAG] = 1.0
         lag = _model_axes(gains.pop("input_lag", None), kind, "input_lag", "s", math.inf,
                           "models the observers' input")
+        dead = _model_axes(gains.pop("input_dead_time", None), kind, "input_dead_time", "s",
+                           DEAD_MAX * h, "is part of the observers' input model")
+        nlag = gains.pop("input_lags", 1)
+        if nlag not in (1, 2):
+            raise ValueError(f"input_lags must be 1 or 2 (got {nlag!r})")
+        if (dead is not None or nlag != 1) and lag is None:
+            raise ValueError("input_dead_time and input_lags shape the input model: give "
+                             "input_lag (its 63 % time) too")
         if lag is not None:
-            for i, tau in enumerate(lag):
+            for i, t63 in enumerate(lag):
+                # the 63 % time given, the dead time before the lags, the lags share the rest
+                d = 0.0 if dead is None else min(dead[i], t63)
+                tau = (t63 - d) / LAG63[nlag]
                 self._IN[i, IN_ALPHA] = 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
                 self._IN[i, IN_TAU] = tau
+                self._IN[i, IN_NLAG] = nlag if tau > 0.0 else 1.0
+                self._IN[i, IN_ND] = round(d / h)
+                self._IN[i, IN_LEAD] = d + self._IN[i, IN_NLAG] * tau
         drag = _model_axes(gains.pop("drag", None), kind, "drag", "/s", DRAG_MAX,
                            "is part of the observers' model")
         if drag is not None:
@@ -326,8 +397,8 @@ class PositionController:
                              "position")
         else:
             self._S[:] = 0.0
-            self._IN[:, IN_STATE] = 0.0
-            self._IN[:, IN_DIFF] = 0.0
+            for i in range(3):
+                input_model_rest(self._IN[i], 0.0)
 
     def hold_disturbance(self):
         """Zero the vertical disturbance estimate z3 (PID: the integrator).
@@ -431,11 +502,12 @@ class PositionController:
     @property
     def feedforward_lead(self):
         """(3,) s per axis: how far ahead the reference's acceleration is fed forward, the
-        observers' input lag (``input_lag``): a command acts that late, so the acceleration
-        asked for now is the one the reference has then (to first order the inverse of the lag,
-        a + lag * da/dt).  0 without an input model, and for ADRC with its TD (which feeds
+        observers' input model's mean delay (``input_lag``; with ``input_dead_time`` and
+        ``input_lags`` the dead time plus the lags' time constants): a command acts that late,
+        so the acceleration asked for now is the one the reference has then (to first order the
+        inverse of the model, a + lead * da/dt).  0 without an input model, and for ADRC with its TD (which feeds
         forward its own acceleration)."""
-        lead = self._IN[:, IN_TAU].copy()
+        lead = self._IN[:, IN_LEAD].copy()
         if self.kind == "adrc" and self._P[0, K.P_TD] != 0.0:
             lead[:] = 0.0
         return lead
