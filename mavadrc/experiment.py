@@ -157,10 +157,10 @@ class Experiment:
                 # scaled once identified (mavadrc.identify.with_identified)
                 m.input_model_scale = sc.input_model_scale
             else:
+                g = m.controller.gains
                 m.controller = dataclasses.replace(m.controller, gains={
-                    **m.controller.gains,
-                    "input_lag": tuple(sc.input_model_scale * float(t)
-                                       for t in m.controller.gains["input_lag"])})
+                    **g, **{key: tuple(sc.input_model_scale * float(t) for t in g[key])
+                            for key in ("input_lag", "input_dead_time") if key in g}})
         return m
 
 

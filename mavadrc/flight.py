@@ -51,9 +51,11 @@ from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
 from .control import kernels as K
-from .control.position import IN_STATE, THRUST_ESTIMATE_S
+from .control.position import (IN_BUF, IN_HEAD, IN_L1, IN_ND, IN_NLAG, IN_STATE,
+                               THRUST_ESTIMATE_S, input_model_rest)
 from .identify import (MAX_DELAY_S, design_lag, failure_text, fit_flight, needs_identification,
-                       observer_drag, observer_lag, partial_text, response_margin, summary_line)
+                       observer_dead_time, observer_drag, observer_lag, partial_text,
+                       response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -131,7 +133,7 @@ def drag_learn_memory(spec, kind=None):
 
 
 def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None,
-                  drag=None, designed_for=None):
+                  drag=None, designed_for=None, dead_time=None):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
     that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
@@ -140,8 +142,12 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     (:mod:`mavadrc.identify`), ``drag: auto`` (its default with ``input_lag: auto``) by the
     ``drag`` identified with them (None: none).  The mission's own ``wc`` and ``wo`` with
     ``input_lag: auto`` are slowed by :func:`scale_to_vehicle` when the vehicle identified is
-    slower than the one they were chosen for (``designed_for``: its lags; None: not known).  Given as a mission's controller, they fly the same controller
-    again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
+    slower than the one they were chosen for (``designed_for``: its lags; None: not known).
+    ``dead_time`` (s per axis, with ``identified``): the observers' input model is shaped as
+    identified, that dead time and :data:`mavadrc.identify.ORDER` equal lags sharing the rest
+    of the 63 % time (``input_dead_time``, ``input_lags``); the rules that slow the gains judge
+    them on the one-lag model they were calibrated on.  Given as a mission's controller, they
+    fly the same controller again.  ``vehicle`` and ``attitude_controller`` are not read (kept for callers)."""
     kind = kind or spec.kind
     # an axis the identification could not fit (None): flown on the safe gains with no model
     safe = [] if identified is None else [i for i, x in enumerate(identified) if x is None]
@@ -186,6 +192,11 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
                               "mavadrc.identify.with_identified on the fast path, or by "
                               "`mavadrc identify`; otherwise give the lags in seconds")
         gains["input_lag"] = tuple(float(x) for x in identified)
+        if dead_time is not None:
+            from .identify import ORDER
+            gains["input_dead_time"] = tuple(min(float(d), float(x))
+                                             for d, x in zip(dead_time, identified))
+            gains["input_lags"] = ORDER
     if safe and kind in ("ladrc", "adrc"):
         gains = _safe_axes(gains, safe)
     return gains
@@ -196,7 +207,8 @@ def _safe_axes(gains, axes):
     (:data:`SAFE_WC`, :data:`SAFE_WO`, no input model, no drag): stable on any response of
     0.03-0.3 s with no model (README, "Safe defaults and the delay margin")."""
     out = dict(gains)
-    for key, value in (("wc", SAFE_WC), ("wo", SAFE_WO), ("input_lag", 0.0), ("drag", 0.0)):
+    for key, value in (("wc", SAFE_WC), ("wo", SAFE_WO), ("input_lag", 0.0),
+                       ("input_dead_time", 0.0), ("drag", 0.0)):
         if key in out and not isinstance(out[key], str):
             row = [float(x) for x in np.broadcast_to(np.asarray(out[key], dtype=float), 3)]
             for i in axes:
@@ -548,7 +560,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 identified=(observer_lag(self.identification, self.m.controller)
                             if self.identification else None),
                 drag=observer_drag(self.identification) if self.identification else None,
-                designed_for=self._design_lag() if self.identification else None)
+                designed_for=self._design_lag() if self.identification else None,
+                dead_time=(observer_dead_time(self.identification, self.m.controller)
+                           if self.identification else None))
         return self.kind, self.gains
 
     def _make_controller(self, hover):
@@ -655,7 +669,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
                               identified=observer_lag(rec, self.m.controller),
-                              drag=observer_drag(rec), designed_for=self._design_lag())
+                              drag=observer_drag(rec), designed_for=self._design_lag(),
+                              dead_time=observer_dead_time(rec, self.m.controller))
         ctrl, margin = self._build(self.hover, self.kind, gains)
         rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, self.m.controller))
         return rec, ctrl, gains, margin
@@ -1293,7 +1308,14 @@ def carry_on(ctrl, old):
     every observer state, the input model's state and the thrust learnt, so the loop goes on
     without a jump mid-mission."""
     ctrl._S[:] = old._S
-    ctrl._IN[:, IN_STATE] = old._IN[:, IN_STATE]
+    same = np.array_equal(ctrl._IN[:, [IN_NLAG, IN_ND]], old._IN[:, [IN_NLAG, IN_ND]])
+    for i in range(3):
+        if same:  # the same stages: their states go on (the new lags' alphas take over)
+            for col in (IN_STATE, IN_L1, IN_HEAD):
+                ctrl._IN[i, col] = old._IN[i, col]
+            ctrl._IN[i, IN_BUF:] = old._IN[i, IN_BUF:]
+        else:  # reshaped: held at the acceleration it gave
+            input_model_rest(ctrl._IN[i], old._IN[i, IN_STATE])
     if ctrl.learns_thrust and old.learns_thrust:
         ctrl.adopt_thrust(old)
 
@@ -1305,7 +1327,8 @@ def carry_over(ctrl, old, pos, vel):
     over without a jump)."""
     ctrl.reset(pos, vel)
     ctrl._S[:, K.S_Z3] = old._S[:, K.S_Z3]
-    ctrl._IN[:, IN_STATE] = old.accel_applied
+    for i, a in enumerate(old.accel_applied):
+        input_model_rest(ctrl._IN[i], a)
     if ctrl.learns_thrust and old.learns_thrust:
         ctrl.adopt_thrust(old)
     elif old.learns_thrust:  # the new one keeps the thrust told: its z3 is the whole disturbance

@@ -453,6 +453,18 @@ def observer_lag(rec, spec):
                  for a, x in zip(AXES, rec["input_lag"]))
 
 
+def observer_dead_time(rec, spec):
+    """The dead time (s per axis) of the observers' input model shaped as identified
+    (``input_dead_time``, with ``input_lags`` :data:`ORDER`): the fitted dead time less the
+    samples' age the controller compensates itself (as :func:`observer_lag`), 0 on an axis not
+    identified."""
+    lat = spec.gains.get("latency", 0.0)
+    age = rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
+    bad = unidentified_axes(rec)
+    return tuple(0.0 if a in bad else max(float(rec["axes"][a]["delay_s"]) - age, 0.0)
+                 for a in AXES)
+
+
 def design_lag(mission):
     """The observers' lags (s per axis) of the vehicle a mission's gains were chosen for: its
     vehicle file's bundled model, identified in process as a flight identifies (calm air, no
@@ -517,8 +529,10 @@ def with_identified(mission, kind=None, seed=None):
     # the gains the flight resolves once it has identified (the defaults slowed to keep their
     # margin, where the spec gives none), then the model scaled (a robustness study's error)
     gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec),
-                          drag=observer_drag(rec))
-    gains["input_lag"] = tuple(mission.input_model_scale * x for x in gains["input_lag"])
+                          drag=observer_drag(rec), dead_time=observer_dead_time(rec, spec))
+    for key in ("input_lag", "input_dead_time"):
+        if key in gains:
+            gains[key] = tuple(mission.input_model_scale * x for x in gains[key])
     m = copy.copy(mission)
     m.controller = dataclasses.replace(spec, kind=kind, gains=gains)
     m.identification = rec
@@ -559,6 +573,10 @@ def model_yaml(rec, source):
                          f"R2 {f['r2']:.4f}")
     lines += ["controller:",
               "  input_lag: [" + ", ".join(f"{x:.4f}" for x in rec["input_lag"]) + "]",
+              "  input_dead_time: [" + ", ".join(
+                  f"{min(rec['axes'][a]['delay_s'], x):.4f}"
+                  for a, x in zip(AXES, rec["input_lag"])) + "]",
+              f"  input_lags: {ORDER}",
               "  drag: [" + ", ".join(f"{x:.4f}" for x in observer_drag(rec)) + "]"]
     return "\n".join(lines) + "\n"
 

@@ -266,19 +266,25 @@ def test_ladrc_and_adrc_learn_the_hover_thrust_in_flight(knobs):
 
 
 def test_learning_the_thrust_keeps_the_tuned_loop_on_a_lighter_vehicle():
-    """The tuned LADRC on the spiral in wind, the vehicle 30 % lighter than told: not learning
-    the thrust, every tilt turns 1.43x the acceleration meant, and the loop (tuned to its
-    margin) limit-cycles (0.43 m measured); learning it, it flies as on the nominal vehicle
-    (0.046 m; goal 0.1)."""
+    """The tuned LADRC on the spiral in wind, the vehicle 40 % lighter than told: not learning
+    the thrust, every tilt turns 1.67x the acceleration meant, and the loop (tuned to its
+    margin) limit-cycles (0.46 m measured); learning it, it flies as on the nominal vehicle
+    (0.047 m; goal 0.1).  (At 30 % lighter, the study's end, the observers' input model shaped
+    as identified keeps enough margin either way: 0.052 m told, 0.041 learnt; with one lag of
+    the same 63 % time it was 0.43 m told.)"""
+    import copy
     import dataclasses
 
     exp = load_experiment(EXPERIMENTS / "robustness.yaml")
-    i = _index(exp, "mass x0.7")
+    sc = exp.scenarios[_index(exp, "mass x0.7")]
+    m = copy.copy(sc.mission)
+    m.mass_scale = 0.6
+    exp = dataclasses.replace(exp, scenarios=[dataclasses.replace(sc, mission=m)])
     j = [c.name for c in exp.controllers].index("LADRC")
-    learnt, _ = run_inprocess(exp, i, j, 0)
+    learnt, _ = run_inprocess(exp, 0, j, 0)
     off = dataclasses.replace(exp.controllers[j].spec,
                               gains={**exp.controllers[j].spec.gains, "thrust_estimate": 0.0})
-    told, _ = run_inprocess(exp, i, j, 0, spec=off)
+    told, _ = run_inprocess(exp, 0, j, 0, spec=off)
     assert learnt["after_settle"]["max_error_m"] < 0.1
     assert told["after_settle"]["max_error_m"] > 0.25
 
