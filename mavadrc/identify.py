@@ -94,6 +94,7 @@ class _AxisFit:
 
     def __init__(self, t, u, v, t0, t1, drag=None, leg=None):
         self.t, self.u = t, u
+        self.window = (t0, t1)
         self.drag = None if drag is None else float(drag)  # fixed (1/s), or fitted (None)
         # the drag leg's cruises [(t0, t1, mean speed, acceleration)] (leg_reading), when the
         # drag is not fixed: c = k s1 - s0 with s1 from the commands as the model sees them
@@ -271,7 +272,9 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
     0.22-0.29 s with 0.46-1.35 /s for SIH's 1 /s; with the drag learnt along the mission,
     :mod:`mavadrc.learn`, the same samples gave 0.244-0.271 s).  Windows of axis ``"leg"`` are
     the drag leg's cruises (:func:`leg_reading`): where it reads an axis and ``drag`` does not
-    give it, the drag there is tied to the gain as the leg says (``drag_from: leg``)."""
+    give it, the drag there is tied to the gain as the leg says (``drag_from: leg``); with
+    ``shared_xy`` and the leg read on both, north and east are fitted again with the mean of
+    their two readings as their drag (each axis's own kept as ``leg_drag_own_per_s``)."""
     t, u, v = (np.asarray(a, dtype=float) for a in (t, u, v))
     legs = [(t0, t1) for ax, t0, t1 in windows if ax == "leg"]
     windows = [w for w in windows if w[0] != "leg"]
@@ -296,6 +299,18 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
         tau, d = _search([fits[a] for a in g])
         for a in g:
             axes[AXES[a]] = _record(fits[a], tau, d)
+        if len(g) == 2 and all(fits[a].leg is not None for a in g):
+            # north and east share the leg's drag as they share the lag: each axis alone read
+            # 0.82-1.44 /s over 14 flights on PX4 SIH (its drag 1.0 on both), their mean
+            # 0.93-1.14; the mission learns each axis's own after
+            own = [axes[AXES[a]]["drag_per_s"] for a in g]
+            c = max(float(np.mean(own)), 0.0)
+            tied = {a: _AxisFit(t, u[:, a], v[:, a], fits[a].window[0], fits[a].window[1],
+                                c) for a in g}
+            tau, d = _search(list(tied.values()))
+            for a, mine in zip(g, own):
+                axes[AXES[a]] = {**_record(tied[a], tau, d), "drag_from": "leg",
+                                 "leg_drag_own_per_s": mine}
     rec = {"model": f"{ORDER} equal first-order lag{'s' if ORDER > 1 else ''} plus a dead time, "
                     "fitted on velocity" + (", north and east together" if len(groups) == 2
                                              and len(groups[0]) == 2 else ""),
