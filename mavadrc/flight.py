@@ -180,6 +180,8 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
             and kind in ("ladrc", "adrc") and ("wc" in given or "wo" in given):
         gains, _ = scale_to_vehicle(spec, kind, gains, tuple(float(x) for x in identified),
                                     tuple(float(x) for x in designed_for))
+    shaped = gains.get("input_lag") == "auto" and identified is not None and \
+        dead_time is not None
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
             and "wc" not in given and "wo" not in given:
         # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
@@ -192,11 +194,12 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
                               "mavadrc.identify.with_identified on the fast path, or by "
                               "`mavadrc identify`; otherwise give the lags in seconds")
         gains["input_lag"] = tuple(float(x) for x in identified)
-        if dead_time is not None:
-            from .identify import ORDER
-            gains["input_dead_time"] = tuple(min(float(d), float(x))
-                                             for d, x in zip(dead_time, identified))
-            gains["input_lags"] = ORDER
+    if shaped and kind in ("ladrc", "adrc"):
+        # (after the rules above, which judge the gains on the one-lag model)
+        from .identify import ORDER
+        gains["input_dead_time"] = tuple(min(float(d), float(x))
+                                         for d, x in zip(dead_time, identified))
+        gains["input_lags"] = ORDER
     if safe and kind in ("ladrc", "adrc"):
         gains = _safe_axes(gains, safe)
     return gains

@@ -251,3 +251,22 @@ def test_a_shaped_input_model_given_in_a_mission_flies_as_given(tmp_path):
     assert ctrl._IN[0, IN_TAU] == pytest.approx((0.234 - 0.076) / 2.1462)
     assert ctrl.feedforward_lead[0] == pytest.approx(0.076 + 2 * (0.234 - 0.076) / 2.1462)
     assert ctrl._IN[2, IN_ND] == 0 and ctrl._IN[2, IN_TAU] == pytest.approx(0.05 / 2.1462)
+
+
+def test_the_identified_shape_is_flown_by_the_mission_gains_and_by_the_slowed_defaults():
+    """``input_lag: auto`` resolved with the dead time identified: the mission's own gains and
+    the defaults (slowed on a slow vehicle by the one-lag rule) both fly the shape; the
+    vertical keeps its own dead time."""
+    from mavadrc.flight import resolve_gains
+    lag, dead = (0.25, 0.25, 0.05), (0.08, 0.08, 0.0)
+    own = ControllerSpec(kind="ladrc", gains={"wc": (2.0, 2.0, 2.5), "input_lag": "auto"})
+    bare = ControllerSpec(kind="ladrc", gains={"input_lag": "auto"})
+    for spec in (own, bare):
+        for kind in ("ladrc", "adrc"):
+            g = resolve_gains(spec, kind, identified=lag, dead_time=dead)
+            assert g["input_lags"] == 2 and g["input_dead_time"] == dead, (spec, kind)
+            assert g["input_lag"] == lag
+            assert "input_lags" not in resolve_gains(spec, kind, identified=lag)
+    # the defaults are slowed on the one-lag model, as before the shape
+    assert resolve_gains(bare, identified=lag, dead_time=dead)["wc"] == \
+        resolve_gains(bare, identified=lag)["wc"]
