@@ -545,6 +545,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
             raise FlightError(self._error)
         return self.summary
 
+    def _release_refused(self):
+        """Refused while arming, the vehicle sits disarmed in the mode we put it in: out of it,
+        as at a flight's end (:meth:`_end_disarmed`).  Left there, PX4 SIH refused the next
+        flight's companion as 'another controller owns it'."""
+        if self.phase != "arming" or self.link.armed:
+            return
+        try:
+            self.link.wait(self.seq.release(self.link))
+        except (LinkError, OSError):
+            pass
+
     def _identifying(self):
         """Whether the input model is still to be identified (or could not be: then the safe
         defaults fly the whole mission)."""
@@ -606,17 +617,18 @@ class Flight(Preflight, GroundPhases, Failsafes):
         t = time_boot_ms / 1000.0 - self._mission_t0
         return self._id_span[0] <= t <= self._id_span[1] + after
 
-    def _identify_step(self, s, t):
+    def _identify_step(self, s, t, ref_vel):
         """Keep the samples of the identify segment; at its end fit the input model and fly
         the mission's controller with it.  The fit and the new controller's delay margin take
         a good part of a second: in lockstep (the vehicle waits) they are made at once, in real
         time in a thread while the safe controller flies on, and the new controller takes over
-        at the first sample after they are ready."""
+        at the first sample after they are ready (``ref_vel``: the reference's velocity the
+        controller flies to now, for :func:`carry_over`)."""
         if self._id_job is not None:
             if not self._id_job.done():
                 return
             job, self._id_job = self._id_job, None
-            return self._identified(s, *job.result())
+            return self._identified(s, ref_vel, *job.result())
         if self._id_windows is None or self.identification is not None:
             return
         start, end = self._id_span
@@ -630,7 +642,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._id_data = []
         self._id_samples = d  # fitted again once the drag is learnt (_refine_step)
         if self.lockstep:
-            return self._identified(s, *self._identify_fit(d))
+            return self._identified(s, ref_vel, *self._identify_fit(d))
         import concurrent.futures
         pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="identify")
         self._id_job = pool.submit(self._identify_fit, d)
@@ -678,8 +690,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, self.m.controller))
         return rec, ctrl, gains, margin
 
-    def _identified(self, s, rec, ctrl, gains, margin):
-        """The identification's result, from sample ``s`` on."""
+    def _identified(self, s, ref_vel, rec, ctrl, gains, margin):
+        """The identification's result, from sample ``s`` on (``ref_vel``: the reference's
+        velocity the controller is flying to now)."""
         self.identification = rec
         self.say(f"input model identified: {summary_line(rec)}")
         if ctrl is None:
@@ -691,7 +704,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._warn_once("identify", partial_text(rec), every=0.0)
         old = self.ctrl
         self.ctrl, self.gains, self.delay_margin = ctrl, gains, margin
-        carry_over(self.ctrl, old, s.pos, s.vel)
+        carry_over(self.ctrl, old, s.pos, s.vel, ref_vel)
         self._learner = self._drag_learner(ctrl, gains)
         lag = ", ".join(f"{x:.3f}" for x in gains["input_lag"])
         bw = _bandwidths(gains)
@@ -828,6 +841,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.say(why)
         if not self.link.armed:
             self.supervisor.report("refused", why)
+            self._release_refused()
             self.phase = "done"
             self._error = why
             return
@@ -1052,7 +1066,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
             self._refine_step(s, t)
-        self._identify_step(s, t)
+        self._identify_step(s, t, rc.vel)
         self._descent_history(s)
         if not self._lifted:
             if lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
@@ -1323,13 +1337,18 @@ def carry_on(ctrl, old):
         ctrl.adopt_thrust(old)
 
 
-def carry_over(ctrl, old, pos, vel):
+def carry_over(ctrl, old, pos, vel, ref_vel=None):
     """Start ``ctrl`` where ``old`` left off: at the measured ``pos``/``vel``, with ``old``'s
     disturbance estimates, the thrust it had learnt (both learning) and the acceleration it
     last commanded as the input model's state (a controller made anew mid-flight then takes
-    over without a jump)."""
+    over without a jump).  ``ref_vel``: the reference's velocity now; the drag along it that
+    ``ctrl`` models and ``old`` did not is moved out of the disturbance estimates (left in, it
+    was fed forward twice: on PX4 SIH, taking over 1.5 s into the run-up at 0.75 m/s, the
+    command went from -1.2 to -3 m/s^2 and the vehicle fell 0.17 m off)."""
     ctrl.reset(pos, vel)
     ctrl._S[:, K.S_Z3] = old._S[:, K.S_Z3]
+    if ref_vel is not None:
+        ctrl._S[:, K.S_Z3] += (ctrl.drag - old.drag) * np.asarray(ref_vel, dtype=float)
     for i, a in enumerate(old.accel_applied):
         input_model_rest(ctrl._IN[i], a)
     if ctrl.learns_thrust and old.learns_thrust:

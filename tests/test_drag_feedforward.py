@@ -316,3 +316,38 @@ def test_the_design_lag_is_found_before_anything_flies(tmp_path, monkeypatch, ca
     assert s["controller_flown"]["input_lags"] == 2
     assert s["controller_flown"]["input_dead_time"][0] == pytest.approx(
         s["identification"]["axes"]["x"]["delay_s"], abs=1e-3)
+
+
+def test_taking_over_mid_motion_does_not_feed_the_drag_forward_twice():
+    """The safe controller (no drag modelled) flies at 0.75 m/s through 1 /s of drag: its z3
+    holds the drag's push.  The mission's controller (the drag modelled along the reference)
+    takes over there (the fit's thread ends while the run-up has begun): its first command is
+    the safe one's, not one drag's worth more (on PX4 SIH the command went from -1.2 to -3
+    m/s^2 at the takeover and the vehicle fell 0.17 m off)."""
+    from mavadrc.control import PositionController
+    from mavadrc.flight import carry_over
+    v, drag, h = -0.75, 1.0, 0.01
+    safe = PositionController("ladrc", h=h, hover_thrust=0.5, wc=1.0, wo=4.0)
+    x, ref = np.array([0.0, 0.0, -3.0]), np.array([0.0, 0.0, -3.0])
+    vel = np.array([v, 0.0, 0.0])
+    rv = vel.copy()
+    safe.reset(x, vel)
+    for _ in range(1500):  # the plant: a = u - drag v (north), following a reference at v
+        safe.update(x, vel, ref, rv)
+        vel[0] += (safe.accel_applied[0] - drag * vel[0]) * h
+        x, ref = x + vel * h, ref + rv * h
+    before = safe.accel_applied[0]
+    assert before == pytest.approx(drag * v, abs=0.05)
+
+    def mission():
+        return PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0,
+                                  input_lag=(0.12, 0.12, 0.05), drag=(drag, drag, 0.0))
+    firsts = []
+    for ref_vel in (rv, None):
+        c = mission()
+        carry_over(c, safe, x, vel, ref_vel)
+        c.update(x, vel, ref, rv)
+        firsts.append(c.accel_applied[0])
+    # -0.87 for the safe one's -0.75 (the faster gains' first step); without: -1.65
+    assert firsts[0] == pytest.approx(before, abs=0.15)
+    assert firsts[1] == pytest.approx(before + drag * v, abs=0.2)

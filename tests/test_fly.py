@@ -22,6 +22,7 @@ from mavadrc.flight import Flight, FlightError  # noqa: E402
 from mavadrc.fly import fly  # noqa: E402
 from mavadrc.link import Link, LinkError, parse_url  # noqa: E402
 from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.sequence import PX4_OFFBOARD  # noqa: E402
 from mavadrc.record import FlightRecord, read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 
@@ -245,6 +246,10 @@ def test_mode_or_arming_refused_stops_the_flight_with_the_vehicles_answer(cmd, w
         fake.join(2)
     summaries = list(tmp_path.glob("*/summary.json"))
     assert summaries and json.loads(summaries[0].read_text())["aborted"]
+    if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+        # put in OFFBOARD and refused the arming, the vehicle is left in its hold mode, not in
+        # OFFBOARD, where the next companion would find it taken (seen on PX4 SIH)
+        assert (fake.mode >> 16) & 0xFF != PX4_OFFBOARD[0]
 
 
 def wait_rows(folder_glob, n, timeout=60.0):
