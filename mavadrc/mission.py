@@ -102,6 +102,7 @@ class Mission:
     settle_s: float = 0.0  # errors are also reported after this mission time
     out: str = "runs"
     transit_speed: float = 1.0
+    transit_accel: float = 2.0
     #: ``input_lag: auto`` resolved before flying (mavadrc.identify.with_identified): the fit
     identification: dict = None
 
@@ -148,7 +149,8 @@ class Mission:
                 jump = np.linalg.norm(first.pos - here) > 1e-6 or \
                     np.linalg.norm(first.vel - here_vel) > 1e-6
                 if jump and spec.get("join", "transit") == "transit":
-                    parts.append(Transit(here, here_vel, here_yaw, first, self.transit_speed))
+                    parts.append(Transit(here, here_vel, here_yaw, first, self.transit_speed,
+                                         self.transit_accel))
                     names.append(f"transit to {name}")
                 parts.append(p)
                 names.append(name)
@@ -235,17 +237,18 @@ class Transit(T.Trajectory):
     thesis spiral) is joined without a velocity step.  The heading turns along a smoothstep.
 
     Duration: long enough for the distance at ``speed`` (peak speed of a rest-to-rest quintic is
-    1.875 distance/T) and for the change of velocity at about 2 m/s^2.
+    1.875 distance/T) and for the change of velocity at about ``accel`` m/s^2 (a mission's
+    ``transit_accel``).
     """
 
     ACCEL = 2.0
 
-    def __init__(self, p0, v0, yaw0, ref, speed):
+    def __init__(self, p0, v0, yaw0, ref, speed, accel=ACCEL):
         p0, v0 = np.asarray(p0, dtype=float), np.asarray(v0, dtype=float)
         p1, v1, a1 = ref.pos, ref.vel, ref.acc
         dist = float(np.linalg.norm(p1 - p0))
         dv = float(np.linalg.norm(v1 - v0))
-        self.duration = max(1.0, 1.875 * dist / speed, 2.5 * dv / self.ACCEL)
+        self.duration = max(1.0, 1.875 * dist / speed, 2.5 * dv / accel)
         Tn = self.duration
         # coefficients per axis of p(s) = sum c_k s^k, s = t/T, from the six boundary values
         A = np.array([[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, 2, 0, 0, 0],
@@ -672,6 +675,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.settle_s = lg.number("settle_s", 0.0, ge=0.0)
         lg.finish()
     m.transit_speed = top.number("transit_speed", 1.0, gt=0.0)
+    m.transit_accel = top.number("transit_accel", Transit.ACCEL, gt=0.0, le=20.0)
     top.finish()
     try:
         check_limits(m, top, segs)
