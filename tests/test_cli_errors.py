@@ -225,7 +225,7 @@ def valid_keys(message):
 HOVER = (MISSIONS / "hover.yaml").read_text()
 TAKEOFF_KEYS = {"altitude", "speed", "yaw_deg", "join"}
 MISSION_KEYS = {"name", "vehicle", "controller", "trajectory", "wind", "sim", "safety", "logging",
-                "transit_speed"}
+                "transit_speed", "transit_accel"}
 
 
 @pytest.mark.parametrize("old, new, line, field, meant, listed", [

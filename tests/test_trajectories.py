@@ -446,3 +446,33 @@ def test_bad_times_raise():
         Hover([0, 0, -1]).sample(NAN)
     with pytest.raises(ValueError, match=r"\bt\b"):
         Hover([0, 0, -1]).sample_many(np.zeros((2, 2)))
+
+
+def test_transit_accel_times_the_run_up_into_a_segment_that_starts_at_speed(tmp_path):
+    """x500_gusts' figure eight starts at 1.9 m/s at the hover point: the transit into it is
+    timed for the change of velocity at ``transit_accel`` (1 m/s^2 there: twice as long as at
+    the default 2, half the peak acceleration); a bad value names the file, line and field."""
+    from mavadrc.mission import load_mission
+    from sim.yamlio import ConfigError
+
+    def transit(accel):
+        text = ("name: m\nvehicle: x500\ncontroller: {type: pd}\ntrajectory:\n"
+                "  - takeoff: {altitude: 3}\n"
+                "  - figure_eight: {a: 6, period: 20, altitude: 3, duration: 20}\n"
+                "  - land: {}\ntransit_speed: 2.0\n"
+                + ("" if accel is None else f"transit_accel: {accel}\n"))
+        path = tmp_path / "m.yaml"
+        path.write_text(text)
+        traj, phases = load_mission(path).build_trajectory(np.zeros(3))
+        i = [name for _, name in phases].index("transit to figure_eight")
+        t0, t1 = phases[i][0], phases[i + 1][0]
+        acc = traj.sample_many(np.linspace(t0, t1, 400))[2]
+        return t1 - t0, np.linalg.norm(acc, axis=1).max()
+
+    (slow, a_default), (long, a_gentle) = transit(None), transit(1.0)
+    assert slow == pytest.approx(2.5 * 6 * 2 * math.pi / 20 * math.sqrt(2) / 2.0, rel=0.02)
+    assert long == pytest.approx(2 * slow)
+    assert a_gentle == pytest.approx(a_default / 2, rel=0.05)
+    with pytest.raises(ConfigError) as e:
+        transit(0)
+    assert "transit_accel" in str(e.value) and "m.yaml:9" in str(e.value)
