@@ -14,7 +14,7 @@ import numpy as np
 from .control.geometry import GRAVITY
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
-from .identify import leg_speed_of, windows_in
+from .identify import HANDOVER_S, leg_speed_of, windows_in
 from .margin import margin_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
@@ -179,10 +179,12 @@ class GroundPhases:
         self._grid = None
         if self._identifying():
             self._id_windows = windows_in(self.phases, leg_speed=leg_speed_of(self.m))
-            # to the segment's end: the leg's last ramp and rest too, so the mission's
-            # controller takes over at rest, as after the doublets alone
+            # to the segment's end less its hold: the leg's last ramp and rest too; the fit is
+            # made while the vehicle holds still, so the mission's controller takes over at
+            # rest, as after the doublets alone
             t_id = dict((name, t0) for t0, name in self.phases)["identify"]
             end = min((t0 for t0, _ in self.phases if t0 > t_id), default=self.traj.duration)
+            end -= HANDOVER_S
             self._id_span = (self._id_windows[0][1], max(end, self._id_windows[-1][2]))
         self._mission_t0 = s.t
         self.mission_start = s.t

@@ -9,8 +9,9 @@ on the vehicle being flown, never read from a model of it:
 2. it flies acceleration doublets about the hover point, one axis after the other
    (:class:`mavadrc.trajectories.Doublets`: +-2 m/s^2 horizontally, about 11 deg of tilt, and
    +-1 m/s^2 vertically, 0.4 s each way, 0.32 m and 0.16 m of excursion; 12.6 s), then a drag
-   leg out and back diagonally at :data:`LEG_SPEED` (8.2 s; 20.8 s in all), tracked as a
-   reference, so the commands are mostly the doublets;
+   leg out and back diagonally at :data:`LEG_SPEED` (8.2 s), tracked as a reference, so the
+   commands are mostly the doublets; then it holds still :data:`HANDOVER_S` while the fit is
+   made (23.8 s in all);
 3. per axis a model of how the commanded acceleration ``u`` (the limited command, held between
    samples) becomes the vehicle's, ``a(t) = k L(u(t - d)) - c v + b(t)``, is fitted to the
    measured velocity ``v``: ``L`` two equal first-order lags ``tau`` (the attitude loop and the
@@ -55,6 +56,11 @@ LEG_WINDOW_S = 1.2
 LEG_MIN_DV = 0.5
 #: how long before a cruise window the commands are run through the model (s), from rest
 LEG_SETTLE_S = 1.0
+#: s the vehicle holds still at the identify segment's end while the fit is made (in real
+#: time 1.6-2.6 s on PX4 SIH on 2 shared cores, in a thread beside the 100 Hz loop): the
+#: mission's controller then takes over at rest, not in the run-up to the next segment, where
+#: the safe observers' lagging disturbance estimate made its first commands jump
+HANDOVER_S = 3.0
 #: the fit: dead times searched (s), lags searched (s), the integration grid (s)
 MAX_DELAY_S = 0.3
 TAU_RANGE_S = (0.005, 1.0)
@@ -79,7 +85,8 @@ def doublets(position, yaw=0.0, amplitude=AMPLITUDE, leg_speed=LEG_SPEED):
     from .trajectories import Doublets
     return Doublets(position, amplitude=amplitude, half_period=HALF_PERIOD, repeats=REPEATS,
                     rest=REST_S, yaw=yaw, leg=(leg_speed, leg_speed) if leg_speed else None,
-                    leg_ramp=LEG_RAMP_S, leg_cruise=LEG_CRUISE_S, leg_window=LEG_WINDOW_S)
+                    leg_ramp=LEG_RAMP_S, leg_cruise=LEG_CRUISE_S, leg_window=LEG_WINDOW_S,
+                    hold=HANDOVER_S)
 
 
 def _shifted_hold(t, u, grid, d):

@@ -555,6 +555,9 @@ class Doublets(Trajectory):
     vehicle's commanded acceleration is its drag plus the wind, whatever its response's lag:
     :attr:`leg_windows` (start, end) are the last ``leg_window`` s of each cruise, where it is
     read.
+
+    ``hold``: s of stillness at the very end, after what is read (:attr:`fit_end`): the
+    vehicle waits there, at rest, while the fit is made.
     """
 
     PATTERN = (1.0, -1.0, -1.0, 1.0)
@@ -562,7 +565,7 @@ class Doublets(Trajectory):
     def __init__(self, position, amplitude=(1.0, 1.0, 1.0), half_period: float = 0.4,
                  repeats: int = 2, rest: float = 1.0, axes=(0, 1, 2), yaw: float = 0.0,
                  leg=None, leg_ramp: float = 0.8, leg_cruise: float = 2.0,
-                 leg_window: float = 1.2):
+                 leg_window: float = 1.2, hold: float = 0.0):
         self.position = _vector("Doublets", "position", position, 3)
         amp = np.broadcast_to(np.asarray(amplitude, dtype=float), 3)
         if not np.all(np.isfinite(amp)) or np.any(amp <= 0.0):
@@ -621,7 +624,8 @@ class Doublets(Trajectory):
             self.leg_windows = [(self._leg_t[2] - w, self._leg_t[2]),
                                 (self._leg_t[4] - w, self._leg_t[4])]
             t = self._leg_t[-1] + rest
-        self.duration = t
+        self.fit_end = t
+        self.duration = t + _number("Doublets", "hold", hold, nonneg=True)
 
     def _eval(self, t):
         n = t.shape[0]

@@ -195,6 +195,12 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     assert summary["landed"]
     assert summary["identification"]["input_lag"] == lag
     assert summary["controller_flown"]["input_lag"] == pytest.approx(lag)
+    # the fit is made (here at once: lockstep) as the vehicle starts to hold still for it
+    assert summary["identification"]["switched_at_speed_mps"] == 0.0
+    _, phases = I.flight_mission(load_mission("configs/missions/hover.yaml")).build_trajectory()
+    land = dict((name, t) for t, name in phases)["land"]
+    assert summary["identification"]["switched_at_s"] == pytest.approx(land - I.HANDOVER_S,
+                                                                      abs=0.03)
     osc = summary.get("attitude_oscillation")
     assert osc is None or osc["amplitude_deg"] < 3.0
     assert not any("limit cycle" in w for w in summary["warnings"])
@@ -271,10 +277,15 @@ def test_a_known_drag_pins_the_lag_the_doublets_trade_it_against():
 def test_the_drag_leg_cruises_and_ends_where_it_began():
     """The identify segment's leg: out and back at the leg's speed north and east, at constant
     speed (no acceleration) through both cruise windows, 2.8 m out at most, back at rest where
-    it began; a leg speed of 0 flies the doublets alone (12.6 s)."""
+    it began, and held there while the fit is made (what is read ends before: ``fit_end``); a
+    leg speed of 0 flies the doublets alone (12.6 s)."""
     d = I.doublets((1.0, 2.0, -3.0))
-    assert d.duration == pytest.approx(12.6 + 4 * I.LEG_RAMP_S + 2 * I.LEG_CRUISE_S + I.REST_S)
-    assert I.doublets((0, 0, 0), leg_speed=0.0).duration == pytest.approx(12.6)
+    assert d.fit_end == pytest.approx(12.6 + 4 * I.LEG_RAMP_S + 2 * I.LEG_CRUISE_S + I.REST_S)
+    assert d.duration == pytest.approx(d.fit_end + I.HANDOVER_S)
+    assert I.doublets((0, 0, 0), leg_speed=0.0).fit_end == pytest.approx(12.6)
+    hold = np.linspace(d.fit_end, d.duration, 50)
+    assert np.allclose(d.sample_many(hold)[0], (1.0, 2.0, -3.0), atol=1e-9)
+    assert np.allclose(d.sample_many(hold)[1], 0.0)
     ts = np.linspace(0.0, d.duration, 40001)
     pos, vel, acc, _, _ = d.sample_many(ts)
     assert np.allclose(pos[-1], (1.0, 2.0, -3.0), atol=1e-9) and np.allclose(vel[-1], 0.0)
