@@ -216,7 +216,8 @@ def test_the_tuned_ladrc_flies_the_spiral_in_wind_through_link_latency(robustnes
                                                                         at_most):
     """The robustness study's tuned LADRC (wc 4, wo 23.9, input model measured, ``latency:
     auto``), the spiral in physical wind, the samples 40 or 60 ms old on arrival: max error
-    after settling 0.056 and 0.067 m measured (told nothing of the age: 0.34 m at 40 ms)."""
+    after settling 0.039 and 0.043 m measured (told nothing of the age, 0.040 m at 40 ms: the
+    identification reads it as dead time, below)."""
     assert _max_error(robustness, scenario, "LADRC") <= at_most
 
 
@@ -224,11 +225,21 @@ def test_the_tuned_adrc_flies_the_spiral_through_40_ms(robustness):
     assert _max_error(robustness, "latency 40 ms", "ADRC") <= 0.1  # 0.064 measured; blind 0.51
 
 
-def test_told_nothing_of_the_age_the_same_ladrc_breaks_at_40_ms(robustness):
+def test_told_nothing_of_the_age_the_ladrc_holds_only_by_modelling_it_as_dead_time(robustness):
+    """Told nothing of the samples' age (no ``latency``), the tuned LADRC's identification reads
+    the 40 ms as part of the response's dead time, and the observers model it: the spiral holds
+    (0.040 m measured; told the age, 0.039).  Flown with one lag of the same 63 % time (as
+    before the shape was modelled) the same blind loop breaks (0.35 m)."""
+    from mavadrc.identify import with_identified
     c = robustness.controllers[[c.name for c in robustness.controllers].index("LADRC")].spec
     blind = dataclasses.replace(c, gains={k: v for k, v in c.gains.items() if k != "latency"})
-    # 0.34 m measured (0.85 before the hover thrust was learnt in flight), against 0.056 told
-    assert _max_error(robustness, "latency 40 ms", "LADRC", spec=blind) > 0.25
+    assert _max_error(robustness, "latency 40 ms", "LADRC", spec=blind) < 0.06
+    i = [s.name for s in robustness.scenarios].index("latency 40 ms")
+    flown = with_identified(robustness.mission(i, 0, blind), "ladrc", 0).controller
+    assert flown.gains["input_dead_time"][0] > 0.035  # the age, read as dead time
+    one_lag = dataclasses.replace(flown, gains={k: v for k, v in flown.gains.items()
+                                                if k not in ("input_dead_time", "input_lags")})
+    assert _max_error(robustness, "latency 40 ms", "LADRC", spec=one_lag) > 0.25
 
 
 LOCKSTEP = """
