@@ -468,11 +468,18 @@ def observer_lag(rec, spec):
     samples' age included: the controller sees its commands act that much later), less the age
     the controller compensates itself (its ``latency``: the median age measured during the
     identification for ``auto``, the seconds given otherwise)."""
-    lat = spec.gains.get("latency", 0.0)
-    age = rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
+    age = _compensated_age(rec, spec)
     bad = unidentified_axes(rec)
     return tuple(None if a in bad else max(float(x) - age, 0.0)
                  for a, x in zip(AXES, rec["input_lag"]))
+
+
+def _compensated_age(rec, spec):
+    """The samples' age (s) ``spec``'s controller compensates itself (its ``latency``: the
+    median age measured during the identification for ``auto``, the seconds given otherwise),
+    to be taken out of the identified response."""
+    lat = spec.gains.get("latency", 0.0)
+    return rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
 
 
 def observer_dead_time(rec, spec):
@@ -480,8 +487,7 @@ def observer_dead_time(rec, spec):
     (``input_dead_time``, with ``input_lags`` :data:`ORDER`): the fitted dead time less the
     samples' age the controller compensates itself (as :func:`observer_lag`), 0 on an axis not
     identified."""
-    lat = spec.gains.get("latency", 0.0)
-    age = rec.get("sample_age_s", 0.0) if lat == "auto" else float(lat or 0.0)
+    age = _compensated_age(rec, spec)
     bad = unidentified_axes(rec)
     return tuple(0.0 if a in bad else max(float(rec["axes"][a]["delay_s"]) - age, 0.0)
                  for a in AXES)

@@ -394,15 +394,9 @@ def test_north_and_east_share_the_drag_the_leg_reads():
     assert "leg_drag_own_per_s" not in apart["y"]
 
 
-def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, monkeypatch,
-                                                                       capsys):
-    """On PX4 SIH the vertical fit once came out with gain -19 (its height estimate drifting
-    through the doublets) while north and east fitted with R2 0.999: the whole mission then flew
-    the safe gains, 1.11 m off its figure eight.  Now the vertical alone flies the safe gains
-    with no model, north and east the mission's with the model identified.  Here the vertical
-    velocities the fit reads are replaced by noise (the flight itself is untouched)."""
+def _noisy_vertical_fit(monkeypatch):
+    """The flight's fit reads noise for the vertical velocity (the flight itself untouched)."""
     import mavadrc.flight as F
-    from mavadrc.flight import SAFE_WC, SAFE_WO
     real = F.fit_flight
 
     def scrambled(t, u, v, *args, **kw):
@@ -411,6 +405,17 @@ def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, 
         return real(t, u, v, *args, **kw)
 
     monkeypatch.setattr(F, "fit_flight", scrambled)
+
+
+def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, monkeypatch,
+                                                                       capsys):
+    """On PX4 SIH the vertical fit once came out with gain -19 (its height estimate drifting
+    through the doublets) while north and east fitted with R2 0.999: the whole mission then flew
+    the safe gains, 1.11 m off its figure eight.  Now the vertical alone flies the safe gains
+    with no model, north and east the mission's with the model identified.  Here the vertical
+    velocities the fit reads are replaced by noise (the flight itself is untouched)."""
+    from mavadrc.flight import SAFE_WC, SAFE_WO
+    _noisy_vertical_fit(monkeypatch)
     code = main(["fly", "configs/missions/thesis_spiral_wind.yaml", "--lockstep", "--out",
                  str(tmp_path), "--no-figures", "-q"])
     out = capsys.readouterr().out
@@ -437,15 +442,7 @@ def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, 
 def test_mavadrc_identify_refuses_to_write_a_model_missing_an_axis(tmp_path, monkeypatch, capsys):
     """A file with no vertical model would fly the vertical on a mission's own gains with no
     model, not the safe ones: ``mavadrc identify`` says which axis failed and writes nothing."""
-    import mavadrc.flight as F
-    real = F.fit_flight
-
-    def scrambled(t, u, v, *args, **kw):
-        v = np.array(v, dtype=float)
-        v[:, 2] = np.random.default_rng(0).normal(0.0, 0.3, len(v))
-        return real(t, u, v, *args, **kw)
-
-    monkeypatch.setattr(F, "fit_flight", scrambled)
+    _noisy_vertical_fit(monkeypatch)
     target = tmp_path / "model.yaml"
     code = main(["identify", "--lockstep", "--out", str(tmp_path), "--write", str(target),
                  "--no-figures", "-q"])
