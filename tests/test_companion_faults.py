@@ -20,7 +20,7 @@ from pymavlink import mavutil
 from sitl_helpers import Client, start_vehicle, wait_until
 
 from mavadrc.flight import Flight
-from mavadrc.fly import UsageError, fly
+from mavadrc.fly import fly
 from mavadrc.link import FlightError, Link, LinkError
 from mavadrc.mission import load_mission
 from mavadrc.record import FlightRecord, read_table
