@@ -53,9 +53,9 @@ from .preflight import Preflight
 from .control import kernels as K
 from .control.position import (IN_BUF, IN_HEAD, IN_L1, IN_ND, IN_NLAG, IN_STATE,
                                THRUST_ESTIMATE_S, input_model_rest)
-from .identify import (MAX_DELAY_S, design_lag, failure_text, fit_flight, needs_identification,
-                       observer_dead_time, observer_drag, observer_lag, partial_text,
-                       response_margin, summary_line)
+from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
+                       needs_identification, observer_dead_time, observer_drag, observer_lag,
+                       partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
 from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
@@ -196,7 +196,6 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
         gains["input_lag"] = tuple(float(x) for x in identified)
     if shaped and kind in ("ladrc", "adrc"):
         # (after the rules above, which judge the gains on the one-lag model)
-        from .identify import ORDER
         gains["input_dead_time"] = tuple(min(float(d), float(x))
                                          for d, x in zip(dead_time, identified))
         gains["input_lags"] = ORDER

@@ -40,6 +40,8 @@ import math
 import numpy as np
 from scipy import optimize, signal
 
+from .control.position import LAG63
+
 #: the doublets flown: amplitude (m/s^2 per axis), half period (s), repeats, rest after each axis
 AMPLITUDE = (2.0, 2.0, 1.0)
 HALF_PERIOD = 0.4
@@ -72,7 +74,6 @@ MIN_R2 = 0.9
 GAIN_RANGE = (0.5, 2.0)
 #: the lag's order: 1 (tau + d is the 63 % time) or 2 (two equal lags: d + 2.146 tau)
 ORDER = 2
-T63 = {1: 1.0, 2: 2.1462}
 #: the disturbance's polynomial degree over an axis's window (0: constant)
 POLY = 4
 
@@ -209,7 +210,7 @@ def _record(f, tau, d):
     var = float(np.sum((f.vs - f.vs.mean()) ** 2))
     r2 = 1.0 - sse / var if var > 0.0 else 0.0
     ok = bool(r2 >= MIN_R2 and GAIN_RANGE[0] <= k <= GAIN_RANGE[1])
-    return {"tau_s": tau, "delay_s": d, "lag_s": T63[ORDER] * tau + d, "gain": k,
+    return {"tau_s": tau, "delay_s": d, "lag_s": LAG63[ORDER] * tau + d, "gain": k,
             "bias_mps2": b, "drag_per_s": c,
             "drag_from": "told" if f.drag is not None else "leg" if f.leg is not None
             else "fitted", "r2": r2, "rms_mps": math.sqrt(sse / f.ts.size),

@@ -59,7 +59,7 @@ def _doublets_from(start):
 
 
 def t63(tau, d, order):
-    return d + (I.T63[order] * tau)
+    return d + (I.LAG63[order] * tau)
 
 
 @pytest.mark.parametrize("tau, d", [(0.05, 0.02), (0.02, 0.06), (0.08, 0.0)])
