@@ -23,6 +23,11 @@ def _fly(args):
     return fly.main(args)
 
 
+def _response(args):
+    from .response import main as response_main
+    return response_main(args)
+
+
 def _identify(args):
     from . import identify
 
@@ -121,6 +126,15 @@ def build_parser():
                    help="hover altitude for the doublets (m, default 1)")
     flight_options(i)
     i.set_defaults(func=_identify)
+    r = command("response", help="measure the autopilot's attitude response from a flight "
+                                 "record, beside the identified model",
+                description="Read a flight folder's tlog: the roll and pitch commanded "
+                            "(SET_ATTITUDE_TARGET) and reported (ATTITUDE) while airborne; print "
+                            "per frequency the gain, phase and coherence of the response, and "
+                            "what the input model identified in that flight says there.")
+    r.add_argument("folder", help="a flight record folder (holding flight.tlog)")
+    r.add_argument("--json", action="store_true", help="print the result as JSON")
+    r.set_defaults(func=_response)
     c = command("compare", help="run an experiment (scenarios x controllers x seeds) and "
                                        "write its report")
     c.add_argument("experiment", help="experiment YAML file (or a name in configs/experiments)")
