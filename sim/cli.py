@@ -140,15 +140,17 @@ def check_ports(args):
     """Fail at once, before the warm-up compiles anything, if a link's local port is taken, or
     if a vehicle's offboard link would send to the ground-station port (instance 10 and up on
     the default ports: 14540 + 10 is 14550)."""
-    gcs = {default_ports(args.instance + k, **fleet_ports(args, k))["gcs"][0]
-           for k in range(getattr(args, "count", 1))}
-    for k in range(getattr(args, "count", 1)):
-        ports = default_ports(args.instance + k, **fleet_ports(args, k))
+    fleet = [default_ports(args.instance + k, **fleet_ports(args, k))
+             for k in range(getattr(args, "count", 1))]
+    gcs = {ports["gcs"][0] for ports in fleet}
+    # the whole fleet's plan first: a port taken on this machine is the lesser news
+    for k, ports in enumerate(fleet):
         if ports["offboard"][0] in gcs:
             raise SystemExit(f"mavadrc sitl: instance {args.instance + k} would send its "
                              f"offboard link to UDP {ports['offboard'][0]}, the ground-station "
                              f"port: give --offboard-port BASE (vehicle k sends to BASE + k) "
                              f"or --gcs-port")
+    for ports in fleet:
         for name, (_, local) in ports.items():
             if local:
                 try:
