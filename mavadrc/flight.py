@@ -46,7 +46,9 @@ from .console import Console
 from .control import PositionController
 from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .ground import GroundPhases, lifted_off
+from .control.geometry import GRAVITY
+from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, GroundPhases,
+                     lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
@@ -74,6 +76,8 @@ CONFIRM_S = 3.0
 YAW_RATE = math.radians(45.0)
 #: roll/pitch oscillation (deg) worth a warning
 OSCILLATION_WARN_DEG = 5.0
+#: s the vehicle must stay past the safety's max_tracking_error before the mission stops
+TRACKING_LOST_S = 1.0
 #: the reference is sampled on the control grid in chunks of this many periods
 GRID_CHUNK = 2048
 
@@ -489,6 +493,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
+        self._carried_since = None  # vehicle time the ground began to carry it mid-mission
+        self._far_since = None  # vehicle time it went max_tracking_error off the reference
         self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
@@ -913,6 +919,53 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 f"{self.origin[2] - s.pos[2]:.2f} m above the takeoff spot by its height "
                 "estimate, mid-mission: the estimate is off or the vehicle hit something")
 
+    def _carried_in_flight(self, s, t, thrust):
+        """Why the flight must end when the ground carries the vehicle mid-mission, whatever
+        the autopilot's land detector says (None otherwise): for :data:`SETTLED_S` after
+        lift-off, before the final land segment, the thrust at its floor and the vertical
+        disturbance estimate holding up :data:`CARRIED_SHARE` of g (the vehicle does not fall
+        with the thrust cut: something holds it up).  On PX4 SIH, in the thesis spiral's run-up
+        at 1 m, the height estimate read level while the vehicle sank 0.23 m/s into the
+        ground; at 2 m/s it stopped dead, the estimate then read a climb, PX4's land detector
+        said nothing, and 5 s later the loop lifted it off again to chase a reference 19 m
+        away."""
+        if not self._lifted or self._in_final_land(t):
+            self._carried_since = None
+            return None
+        z3 = float(self.ctrl.z[2, 2])
+        low = thrust <= self.m.controller.thrust_min + CARRIED_THRUST_MARGIN
+        if not (low and z3 < -CARRIED_SHARE * GRAVITY):
+            self._carried_since = None
+            return None
+        if self._carried_since is None:
+            self._carried_since = s.t
+        if s.t - self._carried_since < SETTLED_S:
+            return None
+        return (f"the ground carries the vehicle mid-mission ({self.origin[2] - s.pos[2]:.2f} m "
+                f"above the takeoff spot by its height estimate; the thrust at its floor, "
+                f"{-z3:.1f} m/s^2 holding it up): the estimate is off or the vehicle hit "
+                "something")
+
+    def _tracking_lost(self, s, r, t):
+        """Why the flight must stop chasing its reference (None otherwise): after lift-off,
+        before the final land segment, the vehicle held more than the safety's
+        ``max_tracking_error`` from the reference ``r`` for :data:`TRACKING_LOST_S`."""
+        limit = self.m.safety.max_tracking_error
+        if not limit or not self._lifted or self._in_final_land(t):
+            self._far_since = None
+            return None
+        err = float(np.linalg.norm(np.asarray(s.pos) - np.asarray(r.pos)))
+        if not err > limit:
+            self._far_since = None
+            return None
+        if self._far_since is None:
+            self._far_since = s.t
+        if s.t - self._far_since < TRACKING_LOST_S:
+            return None
+        return (f"tracking lost: {err:.1f} m from the reference for {TRACKING_LOST_S:g} s "
+                f"(safety.max_tracking_error {limit:g} m): the vehicle is not following it "
+                "(caught or pinned, its height estimate off, a wind past its authority)")
+
     def _send(self, t, q, thrust, kick=False):
         """A setpoint for the sample at vehicle time ``t``, or, ``kick``, one sent without a
         sample (a lockstep clock kept going, the level hover when telemetry stopped)."""
@@ -1092,9 +1145,12 @@ class Flight(Preflight, GroundPhases, Failsafes):
         why = self.supervisor.breach(s, self.origin)
         if why is not None:
             return self._escalate("breach", why)
-        why = self._grounded_in_flight(s, t)
+        why = self._grounded_in_flight(s, t) or self._carried_in_flight(s, t, thrust)
         if why is not None:
             return self._escalate("ground", why)
+        why = self._tracking_lost(s, r, t)
+        if why is not None:
+            return self._escalate("tracking", why)
         if self._in_final_land(t):
             if self._land_wall is None:
                 self._land_wall = time.monotonic()

@@ -34,6 +34,8 @@ GAP_GROWTH = 0.05
 #: touchdown also: the vertical disturbance estimate holds up this share of g (the ground carries
 #: the vehicle's weight), the reference below it, for SETTLED_S, whatever the velocity reads
 CARRIED_SHARE = 0.6
+#: mid-mission, the same with the thrust commanded within this of its floor (normalised)
+CARRIED_THRUST_MARGIN = 0.05
 CUT_S = 0.5  # thrust ramp down after touchdown
 #: s of position history before touchdown the touchdown speed is judged over
 DESCENT_S = 2.0

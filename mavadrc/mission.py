@@ -64,6 +64,9 @@ class Safety:
     max_gap_s: float = 0.5  # longest interval between samples before the flight ends (s)
     min_rate_hz: float = 20.0  # below this achieved sample rate the flight is refused
     max_touchdown_speed: float = 0.5  # m/s; a harder touchdown is no landing (exit 1)
+    #: m from the reference, held TRACKING_LOST_S after lift-off, that ends the mission (the
+    #: vehicle is not following: held where it is, then landed); 0: not checked
+    max_tracking_error: float = 2.0
 
 
 @dataclass
@@ -481,6 +484,8 @@ def _read_safety(sec, s):
     s.min_rate_hz = sec.number("min_rate_hz", s.min_rate_hz, gt=0.0, le=500.0)
     s.max_touchdown_speed = sec.number("max_touchdown_speed", s.max_touchdown_speed, gt=0.0,
                                        le=5.0)
+    s.max_tracking_error = sec.number("max_tracking_error", s.max_tracking_error, ge=0.0,
+                                      le=1000.0)
     sec.finish()
     return s
 

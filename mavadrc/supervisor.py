@@ -14,8 +14,12 @@ interrupted          hold, then land   Ctrl-C: stop where it is, then come down
 link                 hold, then land   loss or a gap past ``safety`` limits
 stale                land              no telemetry: we cannot fly what we cannot see
 breach               land              geofence, altitude or speed limit
-ground               land              the autopilot says on the ground mid-mission:
-                                       the height estimate is off (or a collision)
+ground               land              on the ground mid-mission (the autopilot says so,
+                                       or the ground carries the vehicle's weight): the
+                                       height estimate is off (or a collision)
+tracking             hold, then land   the vehicle held ``max_tracking_error`` from the
+                                       reference: it is not following (caught, pinned,
+                                       a wind past its authority): stop chasing it
 timeout              land              ``--timeout`` passed
 exception            land              an error in the companion itself
 touchdown_timeout    land              touchdown not seen in its bound
@@ -39,6 +43,7 @@ RULES = {
     "stale": LAND,
     "breach": LAND,
     "ground": LAND,
+    "tracking": HOLD_THEN_LAND,
     "timeout": LAND,
     "exception": LAND,
     "touchdown_timeout": LAND,

@@ -400,3 +400,18 @@ def test_the_progress_line_keeps_a_long_segment_name_whole():
     assert out.getvalue().startswith("hover              t    3.0/60 s")  # columns kept
     assert (counted(1, "seed"), counted(2, "seed"), counted(0, "run")) == ("1 seed", "2 seeds",
                                                                            "0 runs")
+
+
+def test_max_tracking_error_is_read_and_a_bad_one_names_its_line(tmp_path):
+    """safety.max_tracking_error: 2 m by default, 0 turns the check off, a negative one is named
+    with its file, line and field."""
+    path = tmp_path / "m.yaml"
+    path.write_text(HOVER)
+    assert load_mission(path).safety.max_tracking_error == 2.0
+    line = len(HOVER.rstrip("\n").splitlines()) + 2
+    for value, expect in (("0", 0.0), ("3.5", 3.5)):
+        path.write_text(HOVER.rstrip("\n") + f"\nsafety:\n  max_tracking_error: {value}\n")
+        assert load_mission(path).safety.max_tracking_error == expect
+    path.write_text(HOVER.rstrip("\n") + "\nsafety:\n  max_tracking_error: -1\n")
+    with pytest.raises(ConfigError, match=rf"{path}:{line}: safety.max_tracking_error"):
+        load_mission(path)
