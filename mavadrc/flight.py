@@ -493,8 +493,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
-        self._carried_since = None  # vehicle time the ground began to carry it mid-mission
-        self._far_since = None  # vehicle time it went max_tracking_error off the reference
+        self._since = {}  # vehicle time each _held_for condition began to hold
         self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
@@ -929,38 +928,36 @@ class Flight(Preflight, GroundPhases, Failsafes):
         ground; at 2 m/s it stopped dead, the estimate then read a climb, PX4's land detector
         said nothing, and 5 s later the loop lifted it off again to chase a reference 19 m
         away."""
-        if not self._lifted or self._in_final_land(t):
-            self._carried_since = None
-            return None
         z3 = float(self.ctrl.z[2, 2])
         low = thrust <= self.m.controller.thrust_min + CARRIED_THRUST_MARGIN
-        if not (low and z3 < -CARRIED_SHARE * GRAVITY):
-            self._carried_since = None
-            return None
-        if self._carried_since is None:
-            self._carried_since = s.t
-        if s.t - self._carried_since < SETTLED_S:
+        if not self._held_for("carried", self._airborne(t) and low
+                              and z3 < -CARRIED_SHARE * GRAVITY, s.t, SETTLED_S):
             return None
         return (f"the ground carries the vehicle mid-mission ({self.origin[2] - s.pos[2]:.2f} m "
                 f"above the takeoff spot by its height estimate; the thrust at its floor, "
                 f"{-z3:.1f} m/s^2 holding it up): the estimate is off or the vehicle hit "
                 "something")
 
+    def _airborne(self, t):
+        """After lift-off and before the mission's final land segment (mission time ``t``)."""
+        return self._lifted and not self._in_final_land(t)
+
+    def _held_for(self, name, condition, now, seconds):
+        """Whether ``condition`` has held ``seconds`` up to vehicle time ``now`` (each call
+        with it false starts ``name``'s count again)."""
+        if not condition:
+            self._since.pop(name, None)
+            return False
+        return now - self._since.setdefault(name, now) >= seconds
+
     def _tracking_lost(self, s, r, t):
         """Why the flight must stop chasing its reference (None otherwise): after lift-off,
         before the final land segment, the vehicle held more than the safety's
         ``max_tracking_error`` from the reference ``r`` for :data:`TRACKING_LOST_S`."""
         limit = self.m.safety.max_tracking_error
-        if not limit or not self._lifted or self._in_final_land(t):
-            self._far_since = None
-            return None
         err = float(np.linalg.norm(np.asarray(s.pos) - np.asarray(r.pos)))
-        if not err > limit:
-            self._far_since = None
-            return None
-        if self._far_since is None:
-            self._far_since = s.t
-        if s.t - self._far_since < TRACKING_LOST_S:
+        if not self._held_for("far", bool(limit) and self._airborne(t) and err > limit, s.t,
+                              TRACKING_LOST_S):
             return None
         return (f"tracking lost: {err:.1f} m from the reference for {TRACKING_LOST_S:g} s "
                 f"(safety.max_tracking_error {limit:g} m): the vehicle is not following it "
