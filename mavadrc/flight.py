@@ -44,9 +44,9 @@ import numpy as np
 
 from .console import Console
 from .control import PositionController
+from .control.geometry import GRAVITY
 from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .control.geometry import GRAVITY
 from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, GroundPhases,
                      lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
