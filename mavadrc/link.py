@@ -53,6 +53,33 @@ UNSIGNED_ALLOWED = (M.MAVLINK_MSG_ID_RADIO_STATUS,)
 SIGNING_EPOCH = 1420070400
 
 
+#: sequence numbers jumped over that a late frame may still fill in (a reordering link)
+SKIPPED_KEPT = 64
+
+
+def count_sequence(last, seq, skipped):
+    """(the newest sequence number, frames to count lost) after a frame numbered ``seq`` where
+    ``last`` was the newest (None: the first).  A jump ahead counts the numbers jumped over as
+    lost and keeps them in ``skipped`` (a bounded deque); a frame behind the newest one that
+    fills one of them in was late, not lost, and is taken back (-1); any other frame behind is
+    a repeat (0).  A jittery link reorders frames: counted as gaps alone, 5 % of the samples
+    lost read as 23 % of the frames."""
+    if last is None:
+        return seq, 0
+    gap = (seq - last - 1) & 0xFF
+    if gap >= 128:  # behind the newest
+        if seq in skipped:
+            skipped.remove(seq)
+            return last, -1
+        return last, 0
+    for k in range(1, gap + 1):
+        skipped.append((last + k) & 0xFF)
+    # what is now half the sequence behind could only be matched by a later lap's number
+    while skipped and (seq - skipped[0]) & 0xFF >= 128:
+        skipped.popleft()
+    return seq, gap
+
+
 class LinkError(RuntimeError):
     """The link or the vehicle did not do what the flight needs; the message says what."""
 
@@ -245,6 +272,7 @@ class Link:
         self.frames_received = 0
         self.frames_lost = 0
         self._last_seq = None
+        self._skipped = collections.deque(maxlen=SKIPPED_KEPT)  # seqs jumped over, not yet seen
         self.spin_s = 0.0  # UDP: poll this long (s) for data before sleeping (lockstep sets it)
         self._queue = collections.deque()
         self.timesync = TimeSync()
@@ -363,14 +391,11 @@ class Link:
         return msg
 
     def _count_seq(self, seq):
-        """Frames lost on the way: gaps in the autopilot's MAVLink sequence numbers."""
+        """Frames lost on the way: gaps in the autopilot's MAVLink sequence numbers
+        (:func:`count_sequence`)."""
         self.frames_received += 1
-        if self._last_seq is not None:
-            gap = (seq - self._last_seq - 1) & 0xFF
-            if gap >= 128:
-                return  # a late or repeated frame, behind the newest one
-            self.frames_lost += gap
-        self._last_seq = seq
+        self._last_seq, lost = count_sequence(self._last_seq, seq, self._skipped)
+        self.frames_lost += lost
 
     def frame_loss(self):
         n = self.frames_received + self.frames_lost

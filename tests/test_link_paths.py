@@ -191,3 +191,38 @@ def test_a_sensor_model_reports_the_state_of_its_own_time():
     b2.set_attitude_target([1.0, 0.0, 0.0, 0.0], 0.2)
     b2.step(0.2)
     assert np.allclose(late.reported().position, b2.reported().position, atol=1e-12)
+
+
+def test_a_reordered_frame_is_late_not_lost():
+    """The frame count behind summary.json's frame_loss_fraction: a frame that arrives after a
+    later one filled in its gap and is not counted lost; a repeat is not counted at all; a
+    number jumped over half a lap ago cannot be filled in by the next lap's frame.  Behind the
+    bundled link's 10 ms of jitter (5 % of the samples lost) it had read 23 %."""
+    import collections
+    import random
+
+    from mavadrc.link import SKIPPED_KEPT, count_sequence
+
+    def count(seqs):
+        last, lost, skipped = None, 0, collections.deque(maxlen=SKIPPED_KEPT)
+        for q in seqs:
+            last, n = count_sequence(last, q, skipped)
+            lost += n
+        return lost
+
+    assert count([0, 1, 2, 3]) == 0
+    assert count([0, 2, 3]) == 1  # one lost
+    assert count([0, 2, 1, 3]) == 0  # one late
+    assert count([0, 2, 2, 3]) == 1  # one lost, one repeat
+    assert count([254, 255, 1, 0, 2]) == 0  # late across the wrap
+    lap = list(range(256))
+    # 5 skipped, then a lap on; the repeat of 5 from the new lap is no late frame
+    assert count([3, 4, 6] + lap[7:] + lap[:7] + [5]) == 1
+    rng = random.Random(1)
+    n, drop = 20000, 0.05
+    sent = [k & 0xFF for k in range(n)]
+    kept = [q for q in sent if rng.random() > drop]
+    # each frame delayed by up to 3 frames' time: reordered, none lost beyond the drops
+    order = sorted(range(len(kept)), key=lambda i: i + 3.0 * rng.random())
+    lost = count([kept[i] for i in order])
+    assert abs(lost / n - (n - len(kept)) / n) < 0.005, lost / n
