@@ -364,6 +364,25 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
 
 
 
+class Held:
+    """Whether a condition seen at each step has held a while (vehicle time, s)."""
+
+    __slots__ = ("since",)
+
+    def __init__(self):
+        self.since = None
+
+    def held(self, condition, now, seconds):
+        """``condition`` now, at vehicle time ``now``: whether it has held ``seconds`` (false
+        starts the count again)."""
+        if not condition:
+            self.since = None
+            return False
+        if self.since is None:
+            self.since = now
+        return now - self.since >= seconds
+
+
 class Flight(Preflight, GroundPhases, Failsafes):
     """One flight of a mission over a :class:`~mavadrc.link.Link`.
 
@@ -493,7 +512,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
-        self._since = {}  # vehicle time each _held_for condition began to hold
+        self._carried = Held()  # the ground carrying the vehicle mid-mission
+        self._far = Held()  # the vehicle past max_tracking_error off the reference
         self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
@@ -930,8 +950,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         away."""
         z3 = float(self.ctrl.z[2, 2])
         low = thrust <= self.m.controller.thrust_min + CARRIED_THRUST_MARGIN
-        if not self._held_for("carried", self._airborne(t) and low
-                              and z3 < -CARRIED_SHARE * GRAVITY, s.t, SETTLED_S):
+        if not self._carried.held(self._airborne(t) and low and z3 < -CARRIED_SHARE * GRAVITY,
+                                  s.t, SETTLED_S):
             return None
         return (f"the ground carries the vehicle mid-mission ({self.origin[2] - s.pos[2]:.2f} m "
                 f"above the takeoff spot by its height estimate; the thrust at its floor, "
@@ -942,21 +962,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """After lift-off and before the mission's final land segment (mission time ``t``)."""
         return self._lifted and not self._in_final_land(t)
 
-    def _held_for(self, name, condition, now, seconds):
-        """Whether ``condition`` has held ``seconds`` up to vehicle time ``now`` (each call
-        with it false starts ``name``'s count again)."""
-        if not condition:
-            self._since.pop(name, None)
-            return False
-        return now - self._since.setdefault(name, now) >= seconds
-
     def _tracking_lost(self, s, r, t):
         """Why the flight must stop chasing its reference (None otherwise): after lift-off,
         before the final land segment, the vehicle held more than the safety's
         ``max_tracking_error`` from the reference ``r`` for :data:`TRACKING_LOST_S`."""
         limit = self.m.safety.max_tracking_error
-        err = float(np.linalg.norm(np.asarray(s.pos) - np.asarray(r.pos)))
-        if not self._held_for("far", bool(limit) and self._airborne(t) and err > limit, s.t,
+        err = math.dist(s.pos, r.pos)
+        if not self._far.held(bool(limit) and self._airborne(t) and err > limit, s.t,
                               TRACKING_LOST_S):
             return None
         return (f"tracking lost: {err:.1f} m from the reference for {TRACKING_LOST_S:g} s "

@@ -272,7 +272,8 @@ class Link:
         self.frames_received = 0
         self.frames_lost = 0
         self._last_seq = None
-        self._skipped = collections.deque(maxlen=SKIPPED_KEPT)  # seqs jumped over, not yet seen
+        # sequence numbers jumped over and not yet seen (count_sequence)
+        self._skipped = collections.deque(maxlen=SKIPPED_KEPT)
         self.spin_s = 0.0  # UDP: poll this long (s) for data before sleeping (lockstep sets it)
         self._queue = collections.deque()
         self.timesync = TimeSync()
