@@ -128,11 +128,13 @@ def build_parser():
     i.set_defaults(func=_identify)
     r = command("response", help="measure the autopilot's attitude response from a flight "
                                  "record, beside the identified model",
-                description="Read a flight folder's tlog: the roll and pitch commanded "
-                            "(SET_ATTITUDE_TARGET) and reported (ATTITUDE) while airborne; print "
-                            "per frequency the gain, phase and coherence of the response, and "
-                            "what the input model identified in that flight says there.")
-    r.add_argument("folder", help="a flight record folder (holding flight.tlog)")
+                description="Read a flight record: the roll and pitch commanded (controller.csv) "
+                            "and reported (the tlog's ATTITUDE) while airborne, both on the "
+                            "vehicle's clock; print per frequency the gain, phase and coherence "
+                            "of the response, and what the input model identified in that "
+                            "flight says there.")
+    r.add_argument("folder", help="a flight record folder (flight.tlog, controller.csv, "
+                                  "summary.json)")
     r.add_argument("--json", action="store_true", help="print the result as JSON")
     r.set_defaults(func=_response)
     c = command("compare", help="run an experiment (scenarios x controllers x seeds) and "

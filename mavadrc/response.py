@@ -33,25 +33,20 @@ SEGMENT_S = 10.24
 AIRBORNE_THRUST = 0.15
 
 
-def _euler(w, x, y, z):
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    return roll, pitch
-
-
-def read_attitudes(folder):
+def read_attitudes(folder, summary):
     """(commanded, reported): arrays of rows (time s, roll, pitch; rad) of the flight in
     ``folder``, both on the vehicle's clock: the attitude the controller commanded at each step
     while airborne (controller.csv; thrust at least :data:`AIRBORNE_THRUST`), timed by the
     sample it answered, and the ATTITUDE frames the autopilot sent (flight.tlog), timed by their
-    ``time_boot_ms``.  The response between them is the one the loop closes through, from the
-    sample to the attitude (as the identification times its fit; in lockstep too, where the
-    tlog's wall-clock stamps run fast)."""
+    ``time_boot_ms`` (``summary``: the flight's summary.json, for its mission's start).  The
+    response between them is the one the loop closes through, from the sample to the attitude
+    (as the identification times its fit; in lockstep too, where the tlog's wall-clock stamps
+    run fast)."""
     from pymavlink import mavutil
 
+    from .control.rotations import quats_to_euler
     from .record import read_table
     folder = Path(folder)
-    summary = json.loads((folder / "summary.json").read_text())
     t0 = summary.get("mission_start_s")
     if t0 is None:
         raise ValueError(f"{folder / 'summary.json'}: the mission never started (no "
@@ -60,7 +55,9 @@ def read_attitudes(folder):
     t = np.asarray(tab["t"], dtype=float) + float(t0)
     q = np.column_stack([np.asarray(tab[c], dtype=float) for c in ("q_w", "q_x", "q_y", "q_z")])
     keep = (np.asarray(tab["thrust"], dtype=float) >= AIRBORNE_THRUST) & np.isfinite(q).all(1)
-    cmd = [(tk, *_euler(*qk)) for tk, qk in zip(t[keep], q[keep])]
+    euler = np.empty((int(keep.sum()), 3))
+    quats_to_euler(np.ascontiguousarray(q[keep]), euler)
+    cmd = np.column_stack([t[keep], euler[:, :2]])
     m = mavutil.mavlink_connection(str(folder / "flight.tlog"), dialect="common")
     rep = []
     while True:
@@ -69,7 +66,7 @@ def read_attitudes(folder):
             break
         rep.append((msg.time_boot_ms / 1000.0, float(msg.roll), float(msg.pitch)))
     rep = sorted(set(rep))  # each frame once, in time order
-    return np.array(cmd).reshape(-1, 3), np.array(rep).reshape(-1, 3)
+    return cmd, np.array(rep).reshape(-1, 3)
 
 
 def frequency_response(cmd, rep, freqs=FREQUENCIES):
@@ -121,19 +118,14 @@ def analyse(folder, freqs=FREQUENCIES):
     for name in ("flight.tlog", "controller.csv", "summary.json"):
         if not (folder / name).is_file():
             raise FileNotFoundError(f"{folder / name}: not found (give a flight record folder)")
-    cmd, rep = read_attitudes(folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    cmd, rep = read_attitudes(folder, summary)
     resp = frequency_response(cmd, rep, freqs)
-    model = None
-    rec = json.loads((folder / "summary.json").read_text()).get("identification") or {}
-    axes = rec.get("axes") or {}
-    if axes:
-        model = {}
-        for name, ax in (("roll", "y"), ("pitch", "x")):  # roll tilts east, pitch north
-            fit = axes.get(ax) or {}
-            if "tau_s" in fit:
-                model[name] = [model_response(fit, r["hz"], ORDER) for r in
-                               (resp or {}).get(name, [{"hz": hz} for hz in freqs])]
-        model = model or None
+    axes = (summary.get("identification") or {}).get("axes") or {}
+    # roll tilts the vehicle east (y), pitch north (x); each axis's model at the bins measured
+    model = {name: [model_response(axes[ax], r["hz"], ORDER) for r in resp[name]]
+             for name, ax in (("roll", "y"), ("pitch", "x"))
+             if resp is not None and "tau_s" in axes.get(ax, {})} or None
     return {"commanded": int(len(cmd)), "reported": int(len(rep)), "response": resp,
             "model": model}
 
