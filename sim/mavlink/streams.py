@@ -12,10 +12,11 @@ import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mavadrc.control.rotations import rotation_matrix
+from mavadrc.control.rotations import euler_from_quat, rotation_matrix
 
 M = mavlink
 EARTH_RADIUS = 6378137.0
+PX4_EARTH_RADIUS = 6371000.0  # CONSTANTS_RADIUS_OF_EARTH
 
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | M.MAV_SYS_STATUS_SENSOR_3D_MAG | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -200,6 +201,48 @@ def debug_vect(s):
     d = s.vehicle.true_disturbance()
     return M.MAVLink_debug_vect_message(b"TRUE_DIST", s.time_us(), float(d[0]), float(d[1]),
                                         float(d[2]))
+
+
+def _true_global(s, radius):
+    """(lat, lon in 1e-7 deg, altitude AMSL in m, NED velocity) of the true state, on a sphere
+    of ``radius`` about home, as the simulator being imitated projects it."""
+    x = s.vehicle.state
+    lat0, lon0, alt0 = s.autopilot.home
+    lat = lat0 + math.degrees(x[0] / radius)
+    lon = lon0 + math.degrees(x[1] / (radius * math.cos(math.radians(lat0))))
+    return int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - float(x[2]), x[3:6]
+
+
+@builds(M.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
+def hil_state_quaternion(s):
+    """The true state, as PX4's SIH sends it (streams/HIL_STATE_QUATERNION.hpp, from the
+    ground-truth topics; its global position projected with PX4's earth radius, 6371 km): what
+    a companion measures its tracking against, beside the autopilot's estimate.  PX4 leaves
+    time_usec 0; so does this."""
+    x = s.vehicle.state
+    lat, lon, alt, v = _true_global(s, PX4_EARTH_RADIUS)
+    q = x[6:10]
+    w = x[10:13]
+    return M.MAVLink_hil_state_quaternion_message(
+        0, list(map(float, q)), float(w[0]), float(w[1]), float(w[2]), lat, lon,
+        int(round(alt * 1000)), int(round(v[0] * 100)), int(round(v[1] * 100)),
+        int(round(v[2] * 100)), 0, 0, 0, 0, 0)
+
+
+@builds(M.MAVLINK_MSG_ID_SIM_STATE)
+def sim_state(s):
+    """The true state, as ArduPilot's SITL sends it (SIM::sim_state_send): lat and lon as
+    floats in 1e-7 deg (not deg, as the message's definition says) and again exact in lat_int
+    and lon_int; ArduPilot's earth radius, 6378137 m."""
+    x = s.vehicle.state
+    lat, lon, alt, v = _true_global(s, EARTH_RADIUS)
+    q = x[6:10]
+    w = x[10:13]
+    e = euler_from_quat(q)
+    return M.MAVLink_sim_state_message(
+        float(q[0]), float(q[1]), float(q[2]), float(q[3]), *map(float, e), 0.0, 0.0, 0.0,
+        float(w[0]), float(w[1]), float(w[2]), float(lat), float(lon), alt, 0.0, 0.0,
+        float(v[0]), float(v[1]), float(v[2]), lat, lon)
 
 
 @builds(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
