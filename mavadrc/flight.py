@@ -64,6 +64,7 @@ from .samples import SampleGate
 from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
+from .truth import truth_text
 
 TRUE_DIST = "TRUE_DIST"
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
@@ -464,6 +465,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._id_data = []
         self._id_job = None  # the fit, running in a thread (real time)
         self.summary = None
+        self.truth = None  # a simulator's true state, when it sends one (mavadrc.truth)
         self.context = {}  # what the caller adds to the record (command line, versions, ...)
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
         self.traj = None
@@ -921,9 +923,25 @@ class Flight(Preflight, GroundPhases, Failsafes):
         elif t == "DEBUG_VECT" and msg.name == TRUE_DIST:
             self.recorder.truth(int(round(msg.time_usec / 1000.0)),
                                 np.array([msg.x, msg.y, msg.z]))
+        elif self.truth is not None and t == self.truth.source:
+            self._on_truth(msg)
         if self._held is not None and not self._awaiting():
             s, self._held = self._held, None
             self._on_sample(s)
+
+    def _on_truth(self, msg):
+        """A simulator's true state: beside the estimate of the same time.  It carries no usable
+        time: it is timed by its arrival after the last position sample on the same link (in
+        lockstep, sent in that sample's period), and the estimate carried there on its own
+        velocity."""
+        s = self.last
+        if s is None:
+            return
+        if self.mission_start is None:
+            self.truth.at_rest(msg, s.pos)
+            return
+        dt = 0.0 if self.lockstep else max(0.0, time.monotonic() - self._last_sample_wall)
+        self.truth.add(s.t + dt - self._mission_t0, msg, s.pos + s.vel * dt)
 
     def _grounded_in_flight(self, s, t):
         """Why the flight must end, when the autopilot's land detector says ON_GROUND after it
@@ -1264,6 +1282,23 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     # --- records -------------------------------------------------------------------------------
 
+    def _truth_figures(self):
+        """summary.json's ``truth``: the true track's error and the estimate's, or None (said
+        in ``sources``: why)."""
+        if self.truth is None:
+            return None
+        fig = self.truth.figures(self.recorder.t, self.recorder.ref, self.m.settle_s)
+        if fig is None:
+            self.sources["truth"] = (f"none: {self.truth.source} asked, "
+                                     f"{self.streams.get(self.truth.source, '?')}; "
+                                     f"{self.truth.received} true samples came (a simulator "
+                                     "sends them, a real vehicle does not)")
+            return None
+        self.sources["truth"] = f"{fig['source']} at {fig['rate_hz'] or 0:.0f} Hz, aligned " \
+                                f"{fig['aligned']}"
+        self.say(truth_text(fig, self.m.settle_s))
+        return fig
+
     def controller_record(self):
         """The controller flown as a mission's ``controller:`` section (:func:`controller_record`);
         None if the gains could not be resolved."""
@@ -1295,6 +1330,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _finish(self):
         self.recorder.flush()
+        truth = self._truth_figures()
         hb = self.link.heartbeat
         disarmed = hb is not None and not self.link.armed
         soft = self.touchdown_speed is None or \
@@ -1379,6 +1415,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary.update(self.recorder.errors())
         if self.m.settle_s > 0:
             summary["after_settle"] = self.recorder.errors(self.m.settle_s)
+        summary["truth"] = truth
         summary["controller_flown"] = self.controller_record()
         summary.update(self.context)
         summary = finite(summary)  # a figure that does not exist is None, in the file and here

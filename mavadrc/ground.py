@@ -190,6 +190,8 @@ class GroundPhases:
             self._id_span = (self._id_windows[0][1], max(end, self._id_windows[-1][2]))
         self._mission_t0 = s.t
         self.mission_start = s.t
+        if self.truth is not None:
+            self.truth.start()
         self._lifted = self.takeover_in_air
         self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
         self.gate.restart(self.h)

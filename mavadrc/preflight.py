@@ -11,6 +11,7 @@ import time
 
 from .link import FlightError, LinkError, M, result_name
 from .sequence import sequence_for
+from .truth import TRUTH_HZ, TruthTrack
 
 #: vehicle time (s) over which the achieved sample rate is measured before arming
 MEASURE_S = 1.0
@@ -164,12 +165,18 @@ class Preflight:
             wanted.append((M.MAVLINK_MSG_ID_DEBUG_VECT, rate))  # the simulator's true disturbance
         for mid in self.seq.unused_streams:
             wanted.append((mid, 0))  # not used: spare the link
+        truth = self.seq.truth_message
+        if truth is not None:
+            # a simulator's true state, to measure the flight against (mavadrc.truth); a real
+            # vehicle refuses it or sends none, and nothing changes
+            wanted.append((getattr(M, "MAVLINK_MSG_ID_" + truth), min(rate, TRUTH_HZ)))
+            self.truth = TruthTrack(truth, table=self.rec.truth_table)
         self.streams = {}
         for mid, hz in wanted:
             result = self.link.set_rate(mid, hz)
             name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
             self.streams[name] = result_name(result)
-            if result != M.MAV_RESULT_ACCEPTED and hz > 0:
+            if result != M.MAV_RESULT_ACCEPTED and hz > 0 and name != truth:
                 self.say(f"the vehicle answered {result_name(result)} to {name} at {hz:g} Hz")
 
     def _ph_measure(self, s):

@@ -200,6 +200,7 @@ class FlightRecord:
         self.folder.mkdir(parents=True, exist_ok=True)
         self.tlog = TlogWriter(self.folder / "flight.tlog")
         self.table = TableWriter(self.folder / "controller.csv")
+        self.truth = None  # truth.csv, opened with the first true sample of the mission
         if mission_text is not None:
             (self.folder / "mission.yaml").write_text(mission_text)
 
@@ -215,9 +216,17 @@ class FlightRecord:
         with open(self.folder / "companion.log", "a") as f:
             f.write(time.strftime("%H:%M:%S ") + text.rstrip() + "\n")
 
+    def truth_table(self, columns):
+        """truth.csv (a simulator's true state, :mod:`mavadrc.truth`), opened on first use."""
+        if self.truth is None:
+            self.truth = TableWriter(self.folder / "truth.csv", columns=columns, text=())
+        return self.truth
+
     def close(self):
         self.tlog.close()
         self.table.close()
+        if self.truth is not None:
+            self.truth.close()
 
 
 YAW_COLUMN = COLUMNS.index("yaw")  # where the vehicle's yaw sits in a controller.csv row

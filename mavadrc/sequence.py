@@ -77,6 +77,8 @@ class Sequence:
     land_to_disarm = False
     #: whether the autopilot has DEBUG_VECT (the bundled vehicle's truth rides on it)
     debug_vect = True
+    #: the message its simulator sends the vehicle's true state in (mavadrc.truth), if asked
+    truth_message = None
 
     def request_control(self, link):
         """Ask for the mode that takes our setpoints; returns the :class:`~mavadrc.link.Command`."""
@@ -124,6 +126,7 @@ class PX4Sequence(Sequence):
     motor_delay_default = 1.0
     unused_streams = (M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                       M.MAVLINK_MSG_ID_ODOMETRY)
+    truth_message = "HIL_STATE_QUATERNION"  # SIH's ground truth (a real PX4 has none to send)
 
     def request_control(self, link):
         return link.command(M.MAV_CMD_DO_SET_MODE, 1, *PX4_OFFBOARD)
@@ -161,6 +164,7 @@ class ArduPilotSequence(Sequence):
     # detector never fires and a disarm is refused: its LAND mode lands and disarms instead
     land_to_disarm = True
     debug_vect = False  # SET_MESSAGE_INTERVAL for it is DENIED (GCS_Common.cpp)
+    truth_message = "SIM_STATE"  # SITL's (SIM::sim_state_send); DENIED on a real vehicle
 
     def __init__(self):
         self.angle_boost = True  # ATC_ANGLE_BOOST, read in preflight

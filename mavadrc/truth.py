@@ -1,0 +1,179 @@
+"""A simulator's true state beside the autopilot's estimate: how far the vehicle really was from
+its reference, and how far the estimate the loop flew on was from the vehicle.
+
+The summary's errors are those of the estimate the autopilot reports (LOCAL_POSITION_NED): the
+only position a real vehicle offers.  A simulator knows better, and several say so on the link:
+
+- PX4's SIH (and the bundled vehicle as PX4) streams HIL_STATE_QUATERNION from its ground-truth
+  topics when asked (SET_MESSAGE_INTERVAL; a real PX4 has no ground truth and sends nothing);
+- ArduPilot's SITL (and the bundled vehicle as ArduPilot) streams SIM_STATE.
+
+Each gives latitude, longitude and altitude; each simulator projects its local frame on its own
+sphere (PX4 6371 km, ArduPilot 6378.137 km), and the same radius takes them back here, so the
+true track is exact to the centimetre over the ranges flown.  Neither message carries a usable
+time (PX4 leaves HIL_STATE_QUATERNION's time_usec 0): a true sample is timed by its arrival
+after the last position sample, on the same link (in lockstep, the period of that sample).
+
+The true track is aligned to the estimate's frame once, where both must agree: the mean
+difference over the last :data:`REST_SAMPLES` pairs before the mission starts (the vehicle at
+rest on the ground); a flight taken over in the air aligns on its first ones instead, and says
+so.  A constant offset of the estimate at start (its origin) is thereby not counted; everything
+it does after, drift and noise, is.
+"""
+
+import math
+from collections import deque
+
+import numpy as np
+
+from .record import error_figures
+
+#: the message each autopilot's simulator sends its true state in, and the earth radius (m) it
+#: projects its local frame with (PX4: CONSTANTS_RADIUS_OF_EARTH; ArduPilot: the radius of its
+#: LOCATION_SCALING_FACTOR)
+SOURCES = {"HIL_STATE_QUATERNION": 6371000.0, "SIM_STATE": 6378137.0}
+#: how often the true state is asked for (Hz; the control rate if lower)
+TRUTH_HZ = 50.0
+#: the pairs (estimate, truth) the alignment averages
+REST_SAMPLES = 25
+
+
+def true_state(msg):
+    """(latitude deg, longitude deg, altitude m AMSL, NED velocity m/s) of a HIL_STATE_QUATERNION
+    or SIM_STATE, or None when it holds no position (a simulator not yet initialised)."""
+    if msg.get_type() == "HIL_STATE_QUATERNION":
+        if msg.lat == 0 and msg.lon == 0:
+            return None
+        return (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01))
+    lat_i, lon_i = getattr(msg, "lat_int", 0), getattr(msg, "lon_int", 0)
+    if lat_i or lon_i:
+        lat, lon = lat_i * 1e-7, lon_i * 1e-7
+    else:
+        # ArduPilot sends the floats in 1e-7 deg; the message's definition says deg
+        lat, lon = msg.lat, msg.lon
+        if abs(lat) > 90.0 or abs(lon) > 180.0:
+            lat, lon = lat * 1e-7, lon * 1e-7
+        if lat == 0.0 and lon == 0.0:
+            return None
+    return lat, lon, float(msg.alt), (float(msg.vn), float(msg.ve), float(msg.vd))
+
+
+class TruthTrack:
+    """The true samples of one flight, in the estimate's frame once aligned."""
+
+    def __init__(self, source, table=None):
+        """``table``: None, or a callable giving the TableWriter of :data:`TRUTH_COLUMNS` the
+        mission's true samples are written to (called with the first)."""
+        if source not in SOURCES:
+            raise ValueError(f"no true state in {source!r}; known: {', '.join(SOURCES)}")
+        self.source = source
+        self.radius = SOURCES[source]
+        self._table = table
+        self.table = None
+        self._origin = None  # (lat, lon, alt) of the first true sample
+        self._rest = deque(maxlen=REST_SAMPLES)
+        self.offset = None  # estimate minus truth, once aligned
+        self.aligned = None  # how
+        self.received = 0
+        self.t, self.pos, self.est = [], [], []
+
+    def local(self, msg):
+        """(NED position about the first true sample, NED velocity) of ``msg``; None if it
+        holds no position."""
+        st = true_state(msg)
+        if st is None:
+            return None
+        lat, lon, alt, vel = st
+        if self._origin is None:
+            self._origin = (lat, lon, alt)
+        lat0, lon0, alt0 = self._origin
+        r = self.radius
+        north = math.radians(lat - lat0) * r
+        east = math.radians(lon - lon0) * r * math.cos(math.radians(lat0))
+        return np.array([north, east, alt0 - alt]), np.array(vel, dtype=float)
+
+    def at_rest(self, msg, estimate):
+        """A true sample before the mission, beside the position ``estimate`` of that time."""
+        got = self.local(msg)
+        if got is None:
+            return
+        self.received += 1
+        self._rest.append(np.asarray(estimate, dtype=float) - got[0])
+
+    def start(self):
+        """The mission starts: align on the pairs at rest (if any came)."""
+        if self._rest and self.offset is None:
+            self.offset = np.mean(self._rest, axis=0)
+            self.aligned = (f"to the position estimate at rest before the mission "
+                            f"(mean of {len(self._rest)} samples)")
+
+    def add(self, t, msg, estimate):
+        """A true sample at mission time ``t``, beside the position ``estimate`` then."""
+        got = self.local(msg)
+        if got is None:
+            return
+        self.received += 1
+        pos, vel = got
+        if self.offset is None:
+            self._rest.append(np.asarray(estimate, dtype=float) - pos)
+            if len(self._rest) < REST_SAMPLES:
+                return
+            self.offset = np.mean(self._rest, axis=0)
+            self.aligned = (f"to the position estimate on the first {len(self._rest)} samples "
+                            "of the mission (no samples at rest: taken over in the air)")
+        pos = pos + self.offset
+        self.t.append(float(t))
+        self.pos.append(pos)
+        self.est.append(np.asarray(estimate, dtype=float))
+        if self._table is not None:
+            if self.table is None:
+                self.table = self._table(TRUTH_COLUMNS)
+            self.table.row([float(t), *pos.tolist(), *vel.tolist()])
+
+    def figures(self, t, ref, settle_s=0.0):
+        """The true track's error against the reference ``ref`` (N, 3) flown at mission times
+        ``t`` (the scored steps), over those steps' span, and the estimate's error against the
+        truth; None without true samples in that span."""
+        t = np.asarray(t, dtype=float)
+        ts = np.asarray(self.t, dtype=float)
+        if t.size < 2 or ts.size == 0:
+            return None
+        # only between two scored steps next to each other: not across the steps left out (the
+        # identification's excitation, flown on another reference, is not scored)
+        k = np.clip(np.searchsorted(t, ts), 1, t.size - 1)
+        step = float(np.median(np.diff(t)))
+        keep = (ts >= t[0]) & (ts <= t[-1]) & (t[k] - t[k - 1] <= 2.5 * step)
+        if keep.sum() < 2:
+            return None
+        ts = ts[keep]
+        pos = np.asarray(self.pos).reshape(-1, 3)[keep]
+        est = np.asarray(self.est).reshape(-1, 3)[keep]
+        ref = np.asarray(ref, dtype=float).reshape(-1, 3)
+        r = np.column_stack([np.interp(ts, t, ref[:, i]) for i in range(3)])
+        out = {"source": self.source, "aligned": self.aligned, "samples": int(ts.size),
+               "rate_hz": float((ts.size - 1) / (ts[-1] - ts[0])) if ts[-1] > ts[0] else None}
+        out.update(error_figures(ts, r, pos))
+        if settle_s > 0:
+            out["after_settle"] = error_figures(ts, r, pos, settle_s)
+        miss = est - pos
+        norm = np.linalg.norm(miss, axis=1)
+        out["estimate_error"] = {
+            "rms_m": float(np.sqrt(np.mean(norm ** 2))), "max_m": float(norm.max()),
+            "rms_xyz_m": [float(v) for v in np.sqrt(np.mean(miss ** 2, axis=0))],
+            "max_xyz_m": [float(v) for v in np.abs(miss).max(axis=0)]}
+        return out
+
+
+#: truth.csv's columns: mission time, the true position in the estimate's frame, true velocity
+TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd"]
+
+
+def truth_text(fig, settle_s=0.0):
+    """The console's line on a flight's true track (``fig`` from :meth:`TruthTrack.figures`)."""
+    e = fig.get("after_settle", fig) if settle_s > 0 else fig
+    when = "after settling" if settle_s > 0 and "after_settle" in fig else "over the mission"
+    est = fig["estimate_error"]
+    return (f"against the simulator's true position ({fig['source']}): max error "
+            f"{e['max_error_m']:.3f} m, rms {e['rms_error_m']:.3f} m {when}; the autopilot's "
+            f"estimate was off by up to {est['max_m']:.3f} m (rms {est['rms_m']:.3f} m)")

@@ -1,0 +1,218 @@
+"""A simulator's true state beside the autopilot's estimate (mavadrc.truth): the summary says how
+far the vehicle really was from its reference, and how far the estimate it flew on was off."""
+
+import io
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as M
+from sitl_helpers import start_vehicle
+
+from mavadrc.fly import fly
+from mavadrc.mission import load_mission
+from mavadrc.record import read_table
+from mavadrc.truth import SOURCES, TruthTrack, true_state
+from sim.mavlink import streams
+
+HOVER = """name: truth hover
+vehicle: crazyflie
+controller: {type: ladrc, rate_hz: 100, input_lag: [0.13, 0.13, 0.05]}
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 1.0}
+  - hover: {duration: HOVER}
+  - land: {speed: 0.6}
+safety: {geofence: {north: [-5, 5], east: [-5, 5]}, altitude: {max: 5}}
+"""
+
+MOVING = """name: truth transit
+vehicle: crazyflie
+controller: {type: ladrc, rate_hz: 100, input_lag: [0.13, 0.13, 0.05]}
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 1.0}
+  - waypoints: {points: [[3, 0, 1], [3, 3, 1]], speed: 1.5}
+  - land: {speed: 0.6}
+transit_speed: 1.5
+safety: {geofence: {north: [-5, 5], east: [-5, 5]}, altitude: {max: 5}}
+"""
+
+
+def mission(tmp_path, text, name="m.yaml", extra=""):
+    path = tmp_path / name
+    path.write_text(text + extra)
+    return load_mission(path)
+
+
+def hil(lat, lon, alt_mm, v=(0, 0, 0)):
+    return M.MAVLink_hil_state_quaternion_message(0, [1, 0, 0, 0], 0, 0, 0, lat, lon, alt_mm,
+                                                  *v, 0, 0, 0, 0, 0)
+
+
+def simstate(lat, lon, alt, lat_int=0, lon_int=0, v=(0.0, 0.0, 0.0)):
+    return M.MAVLink_sim_state_message(1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, lat, lon, alt, 0, 0,
+                                       *v, lat_int, lon_int)
+
+
+# --- the messages -------------------------------------------------------------------------------
+
+def test_each_message_is_read_in_its_own_units():
+    lat, lon, alt, vel = true_state(hil(473977432, 85455942, 489399, (120, -30, 5)))
+    assert (lat, lon) == pytest.approx((47.3977432, 8.5455942), abs=1e-9)
+    assert alt == pytest.approx(489.399) and vel == pytest.approx((1.2, -0.3, 0.05))
+    # ArduPilot: the floats in 1e-7 deg (not the deg its definition says), exact in lat_int
+    got = true_state(simstate(-353632621.0, 1491652374.0, 584.1, -353632621, 1491652374,
+                              (0.5, 0.0, -0.1)))
+    assert got[:2] == pytest.approx((-35.3632621, 149.1652374), abs=1e-9)
+    assert got[3] == pytest.approx((0.5, 0.0, -0.1))
+    got = true_state(simstate(-353632621.0, 1491652374.0, 584.1))
+    assert got[:2] == pytest.approx((-35.3632621, 149.1652374), abs=2e-6)  # float32: 0.2 m
+    got = true_state(simstate(-35.3632621, 149.1652374, 584.1))  # as the definition says
+    assert got[:2] == pytest.approx((-35.3632621, 149.1652374), abs=1e-5)
+    # a simulator not yet placed
+    assert true_state(hil(0, 0, 0)) is None and true_state(simstate(0.0, 0.0, 0.0)) is None
+
+
+def test_the_track_is_projected_with_the_simulators_radius_and_aligned_at_rest():
+    track = TruthTrack("HIL_STATE_QUATERNION")
+    lat0, lon0 = 47.3977432, 8.5455942
+    r = SOURCES["HIL_STATE_QUATERNION"]
+
+    def at(n, e, d):
+        lat = lat0 + math.degrees(n / r)
+        lon = lon0 + math.degrees(e / (r * math.cos(math.radians(lat0))))
+        return hil(round(lat * 1e7), round(lon * 1e7), round((488.0 - d) * 1000))
+
+    for _ in range(30):
+        track.at_rest(at(0.0, 0.0, 0.0), [1.0, 2.0, -0.5])  # the estimate's origin elsewhere
+    track.start()
+    assert "at rest" in track.aligned
+    for k in range(101):
+        t = 0.1 * k
+        track.add(t, at(10.0 * t / 10.0, 0.0, -1.0), [t, 2.0, -1.5 - 0.02 * t])
+    pos = np.asarray(track.pos)
+    assert pos[0] == pytest.approx([1.0, 2.0, -1.5], abs=0.006)  # 1e-7 deg: 1.1 cm steps
+    assert pos[-1] == pytest.approx([11.0, 2.0, -1.5], abs=0.006)  # 10 m north: the scale
+    ts = np.linspace(0.0, 10.0, 1001)
+    ref = np.column_stack([ts + 1.0, np.full_like(ts, 2.0), np.full_like(ts, -1.5)])
+    fig = track.figures(ts, ref, settle_s=5.0)
+    assert fig["max_error_m"] < 0.01  # the vehicle was where the reference said
+    # the estimate ran 1 m ahead north and climbed 2 cm/s: its error, not the flight's
+    assert fig["estimate_error"]["max_xyz_m"][0] == pytest.approx(1.0, abs=0.01)
+    assert fig["estimate_error"]["max_xyz_m"][2] == pytest.approx(0.2, abs=0.01)
+    assert fig["after_settle"]["rms_error_m"] < 0.01
+
+
+def test_without_samples_at_rest_it_aligns_in_the_air_and_says_so():
+    track = TruthTrack("SIM_STATE")
+    for k in range(40):
+        track.add(0.01 * k, simstate(0.0, 0.0, 500.0, -353632621, 1491652374), [5.0, 5.0, -3.0])
+    assert "in the air" in track.aligned
+    assert len(track.t) == 40 - 25 + 1  # the first ones align, from then on they count
+    assert np.asarray(track.pos) == pytest.approx(np.tile([5.0, 5.0, -3.0], (16, 1)))
+
+
+def test_no_true_sample_among_the_scored_steps_gives_no_figures():
+    track = TruthTrack("SIM_STATE")
+    assert track.figures([0.0, 0.01], [[0, 0, 0], [0, 0, 0]]) is None
+    with pytest.raises(ValueError, match="no true state"):
+        TruthTrack("GLOBAL_POSITION_INT")
+
+
+def test_truth_across_steps_left_out_is_not_scored():
+    """The identification's excitation is not scored: the reference is not interpolated across
+    it, so the true samples there count neither way."""
+    track = TruthTrack("HIL_STATE_QUATERNION")
+    track.offset, track.aligned = np.zeros(3), "given"
+    t = np.r_[np.arange(0.0, 1.0, 0.01), np.arange(5.0, 6.0, 0.01)]
+    ref = np.zeros((t.size, 3))
+    for k in range(300):
+        tt = 0.02 * k
+        track.t.append(tt)
+        track.est.append(np.zeros(3))
+        # 2 m off while the steps are left out (1-5 s), on the reference otherwise
+        track.pos.append(np.array([2.0, 0.0, 0.0]) if 1.0 < tt < 5.0 else np.zeros(3))
+    fig = track.figures(t, ref)
+    assert fig["max_error_m"] == 0.0
+    assert 98 <= fig["samples"] <= 100  # the 50 + 50 on the scored stretches
+
+
+# --- flown on the bundled vehicle ---------------------------------------------------------------
+
+def test_a_drifting_height_estimate_is_flown_as_it_says_and_measured_by_the_truth(tmp_path):
+    """The bundled vehicle's height estimate climbs 3 cm/s: the loop holds the estimate on its
+    reference, so the summary's own error stays small, while the truth shows the vehicle sinking
+    below the reference by as much as the estimate drifted since the mission began."""
+    m = mission(tmp_path, HOVER.replace("HOVER", "8"), extra="sim: {height_drift_mps: 0.03}\n")
+    out = io.StringIO()
+    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True, figures=False,
+                          progress=False, stream=out)
+    assert summary["landed"], summary["aborted"]
+    truth = summary["truth"]
+    assert truth["source"] == "HIL_STATE_QUATERNION" and "at rest" in truth["aligned"]
+    assert truth["rate_hz"] == pytest.approx(50.0, rel=0.02)
+    drifted = 0.03 * summary["duration_s"]
+    est_z = truth["estimate_error"]["max_xyz_m"][2]
+    assert est_z == pytest.approx(drifted, rel=0.15)
+    assert summary["max_error_xyz_m"][2] < 0.1  # on the estimate: the drift unseen
+    assert truth["max_error_xyz_m"][2] > 0.8 * drifted  # by the truth: the vehicle sank
+    assert truth["max_error_xyz_m"][2] > 3 * summary["max_error_xyz_m"][2]
+    assert "against the simulator's true position" in out.getvalue()
+    tab = read_table(folder / "truth.csv")
+    assert tab["t"].size >= truth["samples"]  # every one written, scored or not
+    assert np.all(np.diff(tab["t"]) > 0)
+
+
+def test_an_ardupilot_sitl_sends_sim_state_and_a_clean_estimate_agrees_with_it(tmp_path):
+    text = HOVER.replace("HOVER", "3").replace("safety: {", "safety: {set_guid_options: true, ")
+    m = mission(tmp_path, text, extra="sim: {autopilot: ardupilot}\n")
+    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True, figures=False,
+                          progress=False, stream=io.StringIO())
+    assert summary["landed"], summary["aborted"]
+    truth = summary["truth"]
+    assert truth["source"] == "SIM_STATE"
+    # the estimate is the truth here: what is left is SIM_STATE's 1e-7 deg (1.1 cm) steps
+    assert truth["estimate_error"]["max_m"] < 0.01
+    assert truth["rms_error_m"] == pytest.approx(summary["rms_error_m"], abs=0.004)
+
+
+def test_in_real_time_a_true_sample_is_timed_by_its_arrival(tmp_path):
+    """Not in lockstep a true sample is timed by its arrival after the last position sample,
+    on the vehicle's clock: moving at 1.5 m/s the true track's error against the reference is
+    the estimate's own (the clean vehicle's estimate is the truth), within 5 mm; timed 20 ms
+    late, it reads twice that."""
+    srv, port = start_vehicle(params={"COM_SPOOLUP_TIME": 0.0})
+    try:
+        m = mission(tmp_path, MOVING)
+        summary, folder = fly(m, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
+                              out=tmp_path / "runs", figures=False, progress=False,
+                              stream=io.StringIO(), timeout=90.0)
+    finally:
+        srv.stop()
+    assert summary["landed"], summary["aborted"]
+    truth = summary["truth"]
+    tab = read_table(folder / "truth.csv")
+    speed = np.hypot(tab["vn"], tab["ve"])
+    assert speed.max() > 1.3  # it did move
+    assert truth["estimate_error"]["rms_m"] < 0.006
+    assert truth["rms_error_m"] == pytest.approx(summary["rms_error_m"], abs=0.005)
+
+
+def test_a_vehicle_without_truth_says_so_and_flies_as_before(tmp_path, monkeypatch):
+    """A real PX4 has no ground truth: the stream is refused (or nothing comes), the summary's
+    truth is None and its sources say why."""
+    monkeypatch.delitem(streams.BUILDERS, M.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
+    srv, port = start_vehicle(params={"COM_SPOOLUP_TIME": 0.0})
+    try:
+        m = mission(tmp_path, HOVER.replace("HOVER", "2"))
+        out = io.StringIO()
+        summary, folder = fly(m, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
+                              out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                              timeout=60.0)
+    finally:
+        srv.stop()
+    assert summary["landed"], summary["aborted"]
+    assert summary["truth"] is None
+    assert summary["streams"]["HIL_STATE_QUATERNION"] == "FAILED"
+    assert summary["sources"]["truth"].startswith("none: HIL_STATE_QUATERNION asked, FAILED")
+    assert "HIL_STATE_QUATERNION" not in out.getvalue()  # not a warning: expected of a vehicle
+    assert not (folder / "truth.csv").exists()
