@@ -1,7 +1,9 @@
 """Figures of a flight, from a flight record folder or from any .tlog.
 
     path3d.png       3-D path (north, east, altitude) and its top view, against the reference
-    error.png        position error per axis (north, east, altitude) and its 3-D norm
+                     (and a simulator's true path, when the record has truth.csv)
+    error.png        position error per axis (north, east, altitude) and its 3-D norm (and the
+                     true position's, with truth.csv)
     disturbance.png  the observer's total disturbance estimate z3 per axis, and the truth if known
     commands.png     thrust and attitude setpoint (roll, pitch, yaw in degrees); for a record also
                      the acceleration commanded against the one applied after the tilt/thrust limits
@@ -42,6 +44,9 @@ _COLORS = ("C0", "C1", "C2")
 
 
 # ---------------------------------------------------------------------------------- helpers
+
+_TRUTH_COLOR = "0.55"  # a simulator's true track: grey, beside the estimate's colours
+
 
 def _figure(name):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -193,8 +198,9 @@ def _stat_box(ax, err, label="RMS"):
 
 # ---------------------------------------------------------------------------------- drawings
 
-def draw_path(out, pos, ref=None, title="Flight path"):
-    """path3d.png: ``pos`` and ``ref`` are (N, 3) NED; ``ref`` may be None (vehicle path only)."""
+def draw_path(out, pos, ref=None, title="Flight path", truth=None):
+    """path3d.png: ``pos`` and ``ref`` are (N, 3) NED; ``ref`` may be None (vehicle path only);
+    ``truth``: a simulator's true path (M, 3), drawn beside the estimate's, or None."""
     pos = np.asarray(pos, dtype=float)
     has_ref = ref is not None and _finite(ref)
     fig = _figure("path3d")
@@ -207,8 +213,15 @@ def draw_path(out, pos, ref=None, title="Flight path"):
     north, east, alt = pos[:, 0], pos[:, 1], -pos[:, 2]
     # the vehicle under the reference: a few centimetres off, the reference still shows
     ax.computed_zorder = False  # draw in the order given, not by depth
-    ax.plot(east, north, alt, color="C0", lw=2.0, alpha=0.8, label="vehicle", zorder=2)
-    top.plot(east, north, color="C0", lw=2.0, alpha=0.8, label="vehicle", zorder=2)
+    what = "vehicle" if truth is None else "vehicle (estimate)"
+    ax.plot(east, north, alt, color="C0", lw=2.0, alpha=0.8, label=what, zorder=2)
+    top.plot(east, north, color="C0", lw=2.0, alpha=0.8, label=what, zorder=2)
+    if truth is not None and len(truth):
+        tr = np.asarray(truth, dtype=float)
+        ax.plot(tr[:, 1], tr[:, 0], -tr[:, 2], color=_TRUTH_COLOR, lw=1.0,
+                label="true (simulator)", zorder=1)
+        top.plot(tr[:, 1], tr[:, 0], color=_TRUTH_COLOR, lw=1.0, label="true (simulator)",
+                 zorder=1)
     if has_ref:
         ref = np.asarray(ref, dtype=float)
         ax.plot(ref[:, 1], ref[:, 0], -ref[:, 2], label="reference", zorder=3, **_REF_STYLE)
@@ -248,8 +261,11 @@ def draw_path(out, pos, ref=None, title="Flight path"):
     return path
 
 
-def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel="time [s]"):
+def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel="time [s]",
+               truth=None):
     """error.png: ``err`` = position - reference, (N, 3) NED; drawn as north, east, altitude.
+    ``truth``: (t, err) of a simulator's true position against the reference, drawn thin
+    beside the estimate's (the boxes stay the estimate's), or None.
 
     ``stats`` (optional) holds summary.json's rms/max figures; they are shown in the titles as
     the flight's official numbers, the boxes show the whole drawn span.
@@ -262,9 +278,17 @@ def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel
     fig.suptitle(title)
     axes = fig.subplots(4, 1, sharex=True)
     names = ("north", "east", "altitude")
+    if truth is not None:
+        tt, et = (np.asarray(a, dtype=float) for a in truth)
+        et = np.column_stack([et[:, 0], et[:, 1], -et[:, 2]])
+        for k in range(3):
+            axes[k].plot(tt, et[:, k], color=_TRUTH_COLOR, lw=0.8, alpha=0.8,
+                         label="true (simulator)" if k == 0 else None)
+        axes[3].plot(tt, np.linalg.norm(et, axis=1), color=_TRUTH_COLOR, lw=0.8, alpha=0.8)
     for k in range(3):
         ax = axes[k]
-        ax.plot(t, shown[:, k], color=_COLORS[k], lw=1.0)
+        ax.plot(t, shown[:, k], color=_COLORS[k], lw=1.0,
+                label="estimate" if k == 0 and truth is not None else None)
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"{names[k]} error [m]")
         _min_span(ax, MIN_SPAN_M)
@@ -276,6 +300,8 @@ def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel
     axes[-1].set_xlabel(xlabel)
     for ax in axes:
         ax.grid(True, alpha=0.3)
+    if truth is not None:
+        axes[0].legend(fontsize=8, loc="upper left")
     _shade_phases(list(axes), list(spans))
     if stats and stats.get("rms_error_m") is not None:
         try:
@@ -430,9 +456,18 @@ def plot_record(folder, out=None):
 
     pos = _cols(table, [f"pos_{a}" for a in ax3], n)
     ref = _cols(table, [f"ref_{a}" for a in ax3], n)
-    paths = [draw_path(out, pos, ref, title=_title(summary, "Flight path"))]
+    true_path = true_err = None
+    if (folder / "truth.csv").is_file():  # a simulator's true state (mavadrc.truth)
+        tr = record.read_table(folder / "truth.csv")
+        if len(tr.get("t", ())) > 1:
+            true_path = np.column_stack([tr["north"], tr["east"], tr["down"]])
+            on = (tr["t"] >= t[0]) & (tr["t"] <= t[-1])
+            r_at = np.column_stack([np.interp(tr["t"][on], t, ref[:, k]) for k in range(3)])
+            true_err = (tr["t"][on], true_path[on] - r_at)
+    paths = [draw_path(out, pos, ref, title=_title(summary, "Flight path"), truth=true_path)]
     paths.append(draw_error(out, t, pos - ref, spans, stats=summary,
-                            title=_title(summary, "Position error"), xlabel=xlabel))
+                            title=_title(summary, "Position error"), xlabel=xlabel,
+                            truth=true_err))
 
     z3 = _cols(table, [f"z3_{a}" for a in ax3], n)
     truth = _cols(table, [f"true_dist_{a}" for a in ax3], n)

@@ -13,6 +13,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from mavadrc import figures, record  # noqa: E402
+from mavadrc.truth import TRUTH_COLUMNS  # noqa: E402
 
 N = 400
 DT = 0.02
@@ -377,3 +378,29 @@ def test_a_scenario_figure_names_each_controller_once_outside_the_panels(monkeyp
     lo, hi = ax3.get_xlim()
     assert hi - lo >= figures.MIN_SPAN_M
     plt.close(fig)
+
+
+def test_a_record_with_truth_draws_the_true_path_and_error_beside_the_estimates(drawn, tmp_path):
+    """truth.csv (a simulator's true state): path3d.png and error.png draw it beside the
+    estimate's, its error taken against the reference at the true samples' times."""
+    _write_record(tmp_path)
+    table = record.read_table(tmp_path / "controller.csv")
+    t = table["t"][::4]
+    ref = np.column_stack([table[f"ref_{a}"][::4] for a in record.AXES])
+    off = np.array([0.3, -0.2, 0.1])  # the vehicle really 0.3 m north, 0.2 west, 0.1 lower
+    w = record.TableWriter(tmp_path / "truth.csv", columns=TRUTH_COLUMNS, text=())
+    for k in range(t.size):
+        w.row([float(t[k]), *(ref[k] + off).tolist(), 0.0, 0.0, 0.0])
+    w.close()
+    figures.plot_record(tmp_path)
+    top = drawn["path3d"].axes[1]
+    true_line = next(ln for ln in top.get_lines() if ln.get_label() == "true (simulator)")
+    assert np.allclose(true_line.get_xdata(), ref[:, 1] - 0.2)
+    assert "vehicle (estimate)" in {ln.get_label() for ln in top.get_lines()}
+    axes = drawn["error"].axes
+    north = next(ln for ln in axes[0].get_lines() if ln.get_label() == "true (simulator)")
+    assert np.allclose(north.get_ydata(), 0.3, atol=1e-6)
+    alt = [ln for ln in axes[2].get_lines() if ln.get_color() == figures._TRUTH_COLOR][0]
+    assert np.allclose(alt.get_ydata(), -0.1, atol=1e-6)  # altitude error: 0.1 m low
+    norm = [ln for ln in axes[3].get_lines() if ln.get_color() == figures._TRUTH_COLOR][0]
+    assert np.allclose(norm.get_ydata(), np.linalg.norm(off), atol=1e-6)
