@@ -48,7 +48,7 @@ from .control.geometry import GRAVITY
 from .control.rotations import level_quat
 from .failsafe import Failsafes
 from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, GroundPhases,
-                     lifted_off)
+                     landing_tilt, lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
 from .preflight import Preflight
@@ -67,6 +67,8 @@ from .trajectories import Reference
 from .truth import truth_text
 
 TRUE_DIST = "TRUE_DIST"
+#: after touchdown, a tilt past 45 deg (its cosine) is a vehicle on its side, not landed
+TIPPED_COS = math.cos(math.radians(45.0))
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
 LOCKSTEP_SPIN_S = 0.002
@@ -514,6 +516,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
+        self._last_thrust = None  # the last control step's thrust (landing_tilt)
+        self._tipped = False  # the attitude past TIPPED_COS after touchdown
         self._carried = Held()  # the ground carrying the vehicle mid-mission
         self._far = Held()  # the vehicle past max_tracking_error off the reference
         self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
@@ -914,6 +918,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
             if self.phase in ("mission", "touchdown") and not self._in_doublets(msg.time_boot_ms):
                 self._attitudes.append((msg.time_boot_ms / 1000.0, msg.roll, msg.pitch))
             self.cos_tilt = math.cos(msg.roll) * math.cos(msg.pitch)
+            if self.touchdown_seen and self.cos_tilt < TIPPED_COS and not self._tipped:
+                self._tipped = True
+                why = (f"the vehicle tipped over after touchdown: the autopilot reads "
+                       f"{math.degrees(msg.roll):.0f} deg of roll, "
+                       f"{math.degrees(msg.pitch):.0f} of pitch")
+                self.say(f"warning: {why}")
+                self.supervisor.report("tipped", why)
             self.recorder.attitude(msg.time_boot_ms, msg.yaw)
         elif t == "EXTENDED_SYS_STATE":
             self.landed_state = msg.landed_state
@@ -1117,10 +1128,28 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 acc[i] = a.acc[i] + drag[i] * (a.vel[i] - rc.vel[i])
         return Reference(rc.pos, rc.vel, acc, rc.yaw, rc.yaw_rate)
 
-    def _control_step(self, s, r, hold=False):
+    def _control_step(self, s, r, hold=False, tilt_cap=None):
         """One control step on sample ``s`` towards reference ``r`` (for the time the
         controller's estimate is carried to, :meth:`_lead`; ``hold``: stay where the
-        reference was when the hold began); sends the setpoint, returns (q, thrust)."""
+        reference was when the hold began); sends the setpoint, returns (q, thrust).
+        ``tilt_cap`` (rad; landing): the tilt limit for this step, lowered further as the
+        thrust falls towards its floor (:func:`landing_tilt`)."""
+        told = None
+        if tilt_cap is not None:
+            told = self.ctrl.tilt_limit
+            self.ctrl.tilt_limit = landing_tilt(tilt_cap, self._last_thrust,
+                                                self.ctrl.hover_thrust_estimate,
+                                                self.m.controller.thrust_min)
+        try:
+            q, thrust = self._control_update(s, r, hold)
+        finally:
+            if told is not None:
+                self.ctrl.tilt_limit = told
+        self._last_thrust = thrust
+        self._send(s.t, q, thrust * self.seq.thrust_factor(self))
+        return q, thrust
+
+    def _control_update(self, s, r, hold):
         if hold:
             if self._hold_point is None:
                 self._hold_point = s.pos.copy()
@@ -1132,7 +1161,6 @@ class Flight(Preflight, GroundPhases, Failsafes):
         else:
             q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw, dt=s.dt,
                                          age=s.age)
-        self._send(s.t, q, thrust * self.seq.thrust_factor(self))
         return q, thrust
 
     def _ph_mission(self, s):
@@ -1151,7 +1179,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
-        q, thrust = self._control_step(s, rc)
+        land = self._in_final_land(t)
+        q, thrust = self._control_step(s, rc, tilt_cap=math.radians(self.m.controller.tilt_max_deg) if land else None)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
             self._refine_step(s, t)

@@ -9,6 +9,8 @@ vertical speed and height settled); then the thrust is cut, and the disarm follo
 autopilot's landing detector.
 """
 
+import math
+
 import numpy as np
 
 from .control.geometry import GRAVITY
@@ -37,6 +39,9 @@ CARRIED_SHARE = 0.6
 #: mid-mission, the same with the thrust commanded within this of its floor (normalised)
 CARRIED_THRUST_MARGIN = 0.05
 CUT_S = 0.5  # thrust ramp down after touchdown
+#: the tilt limit (deg) of the final descent past the mission's end, as PX4 limits its own
+#: landing (MPC_TILTMAX_LND's default)
+TOUCHDOWN_TILT_DEG = 12.0
 #: s of position history before touchdown the touchdown speed is judged over
 DESCENT_S = 2.0
 
@@ -45,6 +50,20 @@ def spool_thrust(t, start_at, hover):
     """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
     ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
     return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
+
+
+def landing_tilt(cap, thrust, hover, thrust_min):
+    """The tilt limit (rad) of a landing step: ``cap`` while the last step's ``thrust`` is half
+    way from its floor ``thrust_min`` to ``hover`` or more, falling to 0 at the floor.  A
+    thrust near its floor is the ground taking the weight: the attitude the acceleration map
+    would set for the horizontal command (up to the full tilt limit, the thrust vector being
+    nearly all horizontal) then buys no horizontal force, and on the ground it tips the
+    vehicle over (PX4 SIH: the final descent commanded 33 deg of roll at 0.06 thrust and left
+    the vehicle on its side, its summary saying "landed").  None (no step yet): ``cap``."""
+    if thrust is None or not hover > thrust_min:
+        return cap
+    share = (thrust - thrust_min) / (hover - thrust_min)
+    return cap * min(1.0, max(0.0, 2.0 * share))
 
 
 def lifted_off(height, vz):
@@ -210,7 +229,7 @@ class GroundPhases:
         lead = self._lead(s)
         rc = r if lead == 0.0 else Reference(
             *touchdown_reference(self._descent_from, speed, tau + lead), self._final_yaw, 0.0)
-        q, thrust = self._control_step(s, rc)
+        q, thrust = self._control_step(s, rc, tilt_cap=math.radians(TOUCHDOWN_TILT_DEG))
         self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
         self._descent_history(s)
         how = self._ground_contact(s, pos[2], self._phase_wall)

@@ -25,6 +25,10 @@ exception            land              an error in the companion itself
 touchdown_timeout    land              touchdown not seen in its bound
 disarm_timeout       land              the autopilot would not disarm in its bound
 refused              land              the autopilot refused what the flight needs
+tipped               continue          after touchdown the autopilot's attitude tilted past
+                                       45 deg: on its side, not landed (the thrust is
+                                       being cut already; recorded, the flight ends as it
+                                       does)
 landing_timeout      give up           the autopilot has not landed in its bound
 unreachable          give up           no heartbeat: nothing more can be done
 ===================  ================  =============================================
@@ -49,6 +53,7 @@ RULES = {
     "touchdown_timeout": LAND,
     "disarm_timeout": LAND,
     "refused": LAND,
+    "tipped": CONTINUE,
     "landing_timeout": GIVE_UP,
     "unreachable": GIVE_UP,
 }

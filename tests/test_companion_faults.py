@@ -21,6 +21,7 @@ from sitl_helpers import Client, start_vehicle, wait_until
 
 from mavadrc.flight import Flight
 from mavadrc.fly import fly
+from mavadrc.ground import TOUCHDOWN_TILT_DEG, landing_tilt
 from mavadrc.link import FlightError, Link, LinkError
 from mavadrc.mission import load_mission
 from mavadrc.record import FlightRecord, read_table
@@ -435,6 +436,68 @@ def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     assert summary["landed"], (summary["aborted"], text)
     assert "(the ground carries its weight)" in text
     assert summary["touchdown_speed_mps"] < 0.5
+
+
+def test_the_landing_tilt_falls_with_the_thrust_to_level_at_its_floor():
+    cap = math.radians(12.0)
+    assert landing_tilt(cap, None, 0.5, 0.05) == cap  # no step yet
+    assert landing_tilt(cap, 0.5, 0.5, 0.05) == cap
+    assert landing_tilt(cap, 0.275, 0.5, 0.05) == pytest.approx(cap)  # half way: still all
+    assert landing_tilt(cap, 0.1625, 0.5, 0.05) == pytest.approx(cap / 2)
+    assert landing_tilt(cap, 0.05, 0.5, 0.05) == 0.0
+    assert landing_tilt(cap, 0.0, 0.5, 0.05) == 0.0  # below the floor: level, not negative
+    assert landing_tilt(cap, 0.3, 0.05, 0.05) == cap  # a hover at the floor: no scale to use
+
+
+def test_the_final_descent_does_not_tip_the_vehicle_as_the_ground_takes_its_weight(tmp_path):
+    """PX4 SIH, once: in the final descent the thrust fell to its floor while the ground took
+    the weight, the horizontal loop went on asking for its acceleration, and the attitude that
+    asks for it with the thrust vector nearly all horizontal is the full tilt limit: 33 deg of
+    roll commanded on the ground left the vehicle on its side, and the summary said "landed".
+    Here in moderate gusts, with the estimate sinking on the ground and no ON_GROUND (touchdown
+    is seen late, by the ground carrying the weight, as there): the descent holds PX4's landing
+    tilt limit (12 deg), and under 5 deg as the thrust nears its floor (34 deg without)."""
+    srv, link = lossy_vehicle(link_seed=15, wind="moderate_gusts")
+    link.hook, state = _moving_on_the_ground(srv, 0.15)
+    try:
+        summary, folder, text = fly_through(link, short_mission(tmp_path, hover=2), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["landed"], (summary["aborted"], text)
+    tab = read_table(folder / "controller.csv")
+    final = np.asarray(tab["phase"]) == "touchdown"
+    tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (tab["q_x"] ** 2 + tab["q_y"] ** 2), -1, 1)))
+    low = final & (tab["thrust"] < 0.05 + 0.05)  # thrust_min 0.05
+    assert low.sum() > 10  # the thrust did reach its floor before touchdown was seen
+    assert tilt[final].max() <= TOUCHDOWN_TILT_DEG + 0.01
+    assert tilt[low].max() < 5.0
+
+
+def test_a_vehicle_that_tips_over_after_touchdown_is_not_reported_landed(tmp_path):
+    """The autopilot's attitude reading 80 deg of roll after touchdown (PX4 SIH's did, the
+    vehicle on its side): the summary says so and does not say "landed"."""
+    srv, link = lossy_vehicle(link_seed=15)
+    state = {"flew": False, "tipped": 0}
+
+    def hook(msg, direction):
+        if direction == "down" and msg.get_type() == "ATTITUDE":
+            z = float(srv.vehicle.state[2])
+            state["flew"] = state["flew"] or z < -0.5
+            if state["flew"] and z > -0.02:  # on the ground again
+                msg.roll = math.radians(80.0)
+                state["tipped"] += 1
+        return msg
+
+    link.hook = hook
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
+    finally:
+        stop(srv, link)
+    assert state["tipped"] > 0
+    assert summary["touchdown_seen"]
+    assert not summary["landed"]
+    assert any("tipped over after touchdown" in r for r in summary["aborted"]), summary["aborted"]
+    assert "warning: the vehicle tipped over after touchdown" in text
 
 
 def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):

@@ -494,6 +494,18 @@ class PositionController:
         return bool(self._M[G.M_TPA_RATE] > 0.0)
 
     @property
+    def tilt_limit(self):
+        """The tilt limit (rad) the acceleration map holds the attitude setpoint to."""
+        return float(self._M[G.M_TILT])
+
+    @tilt_limit.setter
+    def tilt_limit(self, rad):
+        rad = float(rad)
+        if not (math.isfinite(rad) and 0.0 <= rad < 0.5 * math.pi):
+            raise ValueError(f"tilt_limit must be in [0, pi/2) rad (got {rad!r})")
+        self._M[G.M_TILT] = rad
+
+    @property
     def hover_thrust_estimate(self):
         """The normalized thrust that holds a hover as the controller now takes it: the figure
         told, or what it has learnt in flight (``thrust_estimate_tau``)."""
