@@ -151,8 +151,12 @@ class TruthTrack:
         est = np.asarray(self.est).reshape(-1, 3)[keep]
         ref = np.asarray(ref, dtype=float).reshape(-1, 3)
         r = np.column_stack([np.interp(ts, t, ref[:, i]) for i in range(3)])
+        gaps = np.diff(ts)
+        gaps = gaps[gaps > 0]
         out = {"source": self.source, "aligned": self.aligned, "samples": int(ts.size),
-               "rate_hz": float((ts.size - 1) / (ts[-1] - ts[0])) if ts[-1] > ts[0] else None}
+               # the rate they came at (not their count over the span: the steps left out
+               # leave a hole in it)
+               "rate_hz": float(1.0 / np.median(gaps)) if gaps.size else None}
         out.update(error_figures(ts, r, pos))
         if settle_s > 0:
             out["after_settle"] = error_figures(ts, r, pos, settle_s)

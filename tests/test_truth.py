@@ -134,6 +134,7 @@ def test_truth_across_steps_left_out_is_not_scored():
     fig = track.figures(t, ref)
     assert fig["max_error_m"] == 0.0
     assert 98 <= fig["samples"] <= 100  # the 50 + 50 on the scored stretches
+    assert fig["rate_hz"] == pytest.approx(50.0)  # as they came, the hole not counted
 
 
 # --- flown on the bundled vehicle ---------------------------------------------------------------
