@@ -1179,8 +1179,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
-        land = self._in_final_land(t)
-        q, thrust = self._control_step(s, rc, tilt_cap=math.radians(self.m.controller.tilt_max_deg) if land else None)
+        cap = math.radians(self.m.controller.tilt_max_deg) if self._in_final_land(t) else None
+        q, thrust = self._control_step(s, rc, tilt_cap=cap)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
             self._refine_step(s, t)
