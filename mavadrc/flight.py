@@ -67,7 +67,8 @@ from .trajectories import Reference
 from .truth import truth_text
 
 TRUE_DIST = "TRUE_DIST"
-#: after touchdown, a tilt past 45 deg (its cosine) is a vehicle on its side, not landed
+#: in the final descent or after touchdown, a tilt past 45 deg (its cosine) is a vehicle on its
+#: side, not landed
 TIPPED_COS = math.cos(math.radians(45.0))
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
@@ -918,9 +919,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
             if self.phase in ("mission", "touchdown") and not self._in_doublets(msg.time_boot_ms):
                 self._attitudes.append((msg.time_boot_ms / 1000.0, msg.roll, msg.pitch))
             self.cos_tilt = math.cos(msg.roll) * math.cos(msg.pitch)
-            if self.touchdown_seen and self.cos_tilt < TIPPED_COS and not self._tipped:
+            near_ground = self.touchdown_seen or self.phase == "touchdown"
+            if near_ground and self.cos_tilt < TIPPED_COS and not self._tipped:
                 self._tipped = True
-                why = (f"the vehicle tipped over after touchdown: the autopilot reads "
+                why = (f"the vehicle tipped over at touchdown: the autopilot reads "
                        f"{math.degrees(msg.roll):.0f} deg of roll, "
                        f"{math.degrees(msg.pitch):.0f} of pitch")
                 self.say(f"warning: {why}")

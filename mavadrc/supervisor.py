@@ -25,7 +25,7 @@ exception            land              an error in the companion itself
 touchdown_timeout    land              touchdown not seen in its bound
 disarm_timeout       land              the autopilot would not disarm in its bound
 refused              land              the autopilot refused what the flight needs
-tipped               continue          after touchdown the autopilot's attitude tilted past
+tipped               continue          at touchdown the autopilot's attitude tilted past
                                        45 deg: on its side, not landed (the thrust is
                                        being cut already; recorded, the flight ends as it
                                        does)

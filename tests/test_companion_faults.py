@@ -496,8 +496,8 @@ def test_a_vehicle_that_tips_over_after_touchdown_is_not_reported_landed(tmp_pat
     assert state["tipped"] > 0
     assert summary["touchdown_seen"]
     assert not summary["landed"]
-    assert any("tipped over after touchdown" in r for r in summary["aborted"]), summary["aborted"]
-    assert "warning: the vehicle tipped over after touchdown" in text
+    assert any("tipped over at touchdown" in r for r in summary["aborted"]), summary["aborted"]
+    assert "warning: the vehicle tipped over at touchdown" in text
 
 
 def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
