@@ -175,8 +175,11 @@ TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd"]
 
 def truth_text(fig, settle_s=0.0):
     """The console's line on a flight's true track (``fig`` from :meth:`TruthTrack.figures`)."""
-    e = fig.get("after_settle", fig) if settle_s > 0 else fig
-    when = "after settling" if settle_s > 0 and "after_settle" in fig else "over the mission"
+    settled = fig.get("after_settle") if settle_s > 0 else None
+    if settled is not None and not math.isfinite(settled["max_error_m"] or math.nan):
+        settled = None  # the flight ended before it settled
+    e = fig if settled is None else settled
+    when = "over the mission" if settled is None else "after settling"
     est = fig["estimate_error"]
     return (f"against the simulator's true position ({fig['source']}): max error "
             f"{e['max_error_m']:.3f} m, rms {e['rms_error_m']:.3f} m {when}; the autopilot's "

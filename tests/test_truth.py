@@ -12,7 +12,7 @@ from sitl_helpers import start_vehicle
 from mavadrc.fly import fly
 from mavadrc.mission import load_mission
 from mavadrc.record import read_table
-from mavadrc.truth import SOURCES, TruthTrack, true_state
+from mavadrc.truth import SOURCES, TruthTrack, true_state, truth_text
 from sim.mavlink import streams
 
 HOVER = """name: truth hover
@@ -116,6 +116,23 @@ def test_no_true_sample_among_the_scored_steps_gives_no_figures():
     assert track.figures([0.0, 0.01], [[0, 0, 0], [0, 0, 0]]) is None
     with pytest.raises(ValueError, match="no true state"):
         TruthTrack("GLOBAL_POSITION_INT")
+
+
+def test_the_console_line_says_over_what_it_was_measured():
+    track = TruthTrack("HIL_STATE_QUATERNION")
+    track.offset, track.aligned = np.zeros(3), "given"
+    for k in range(100):
+        track.t.append(0.1 * k)
+        track.pos.append(np.array([0.2 if k < 50 else 0.05, 0.0, 0.0]))
+        track.est.append(np.zeros(3))
+    ts = np.arange(0.0, 10.0, 0.01)
+    ref = np.zeros((ts.size, 3))
+    line = truth_text(track.figures(ts, ref, settle_s=5.0), 5.0)
+    assert "max error 0.050 m, rms 0.050 m after settling" in line
+    assert "off by up to 0.200 m" in line
+    # a flight that ended before settling: the whole mission, said so (not "nan")
+    line = truth_text(track.figures(ts, ref, settle_s=20.0), 20.0)
+    assert "max error 0.200 m" in line and "over the mission" in line
 
 
 def test_truth_across_steps_left_out_is_not_scored():
