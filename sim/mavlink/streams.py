@@ -13,10 +13,10 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mavadrc.control.rotations import euler_from_quat, rotation_matrix
+from mavadrc.truth import SOURCES as TRUTH_RADIUS  # each simulator's sphere, as it projects
 
 M = mavlink
 EARTH_RADIUS = 6378137.0
-PX4_EARTH_RADIUS = 6371000.0  # CONSTANTS_RADIUS_OF_EARTH
 
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | M.MAV_SYS_STATUS_SENSOR_3D_MAG | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -63,12 +63,13 @@ class Streams:
     def time_us(self):
         return int(round(self.vehicle.time * 1e6))
 
-    def global_position(self, p):
-        """(lat, lon in 1e-7 deg, altitude AMSL in m) of local NED position ``p``."""
+    def global_position(self, p, radius=EARTH_RADIUS):
+        """(lat, lon in 1e-7 deg, altitude AMSL in m) of local NED position ``p``, on a sphere
+        of ``radius`` (m) about home."""
         lat0, lon0, alt0 = self.autopilot.home
-        lat = lat0 + math.degrees(p[0] / EARTH_RADIUS)
-        lon = lon0 + math.degrees(p[1] / (EARTH_RADIUS * math.cos(math.radians(lat0))))
-        return int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - p[2]
+        lat = lat0 + math.degrees(p[0] / radius)
+        lon = lon0 + math.degrees(p[1] / (radius * math.cos(math.radians(lat0))))
+        return int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - float(p[2])
 
     def battery_remaining(self):
         return int(max(5.0, 100.0 - 0.05 * self.vehicle.time))
@@ -203,16 +204,6 @@ def debug_vect(s):
                                         float(d[2]))
 
 
-def _true_global(s, radius):
-    """(lat, lon in 1e-7 deg, altitude AMSL in m, NED velocity) of the true state, on a sphere
-    of ``radius`` about home, as the simulator being imitated projects it."""
-    x = s.vehicle.state
-    lat0, lon0, alt0 = s.autopilot.home
-    lat = lat0 + math.degrees(x[0] / radius)
-    lon = lon0 + math.degrees(x[1] / (radius * math.cos(math.radians(lat0))))
-    return int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - float(x[2]), x[3:6]
-
-
 @builds(M.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
 def hil_state_quaternion(s):
     """The true state, as PX4's SIH sends it (streams/HIL_STATE_QUATERNION.hpp, from the
@@ -220,9 +211,8 @@ def hil_state_quaternion(s):
     a companion measures its tracking against, beside the autopilot's estimate.  PX4 leaves
     time_usec 0; so does this."""
     x = s.vehicle.state
-    lat, lon, alt, v = _true_global(s, PX4_EARTH_RADIUS)
-    q = x[6:10]
-    w = x[10:13]
+    lat, lon, alt = s.global_position(x[0:3], TRUTH_RADIUS["HIL_STATE_QUATERNION"])
+    q, v, w = x[6:10], x[3:6], x[10:13]
     return M.MAVLink_hil_state_quaternion_message(
         0, list(map(float, q)), float(w[0]), float(w[1]), float(w[2]), lat, lon,
         int(round(alt * 1000)), int(round(v[0] * 100)), int(round(v[1] * 100)),
@@ -235,9 +225,8 @@ def sim_state(s):
     floats in 1e-7 deg (not deg, as the message's definition says) and again exact in lat_int
     and lon_int; ArduPilot's earth radius, 6378137 m."""
     x = s.vehicle.state
-    lat, lon, alt, v = _true_global(s, EARTH_RADIUS)
-    q = x[6:10]
-    w = x[10:13]
+    lat, lon, alt = s.global_position(x[0:3], TRUTH_RADIUS["SIM_STATE"])
+    q, v, w = x[6:10], x[3:6], x[10:13]
     e = euler_from_quat(q)
     return M.MAVLink_sim_state_message(
         float(q[0]), float(q[1]), float(q[2]), float(q[3]), *map(float, e), 0.0, 0.0, 0.0,
