@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from . import record
+from .truth import reference_at
 from .control.rotations import quats_to_euler
 
 #: resolution of every PNG, dots per inch
@@ -462,8 +463,7 @@ def plot_record(folder, out=None):
         if len(tr.get("t", ())) > 1:
             true_path = np.column_stack([tr["north"], tr["east"], tr["down"]])
             on = (tr["t"] >= t[0]) & (tr["t"] <= t[-1])
-            r_at = np.column_stack([np.interp(tr["t"][on], t, ref[:, k]) for k in range(3)])
-            true_err = (tr["t"][on], true_path[on] - r_at)
+            true_err = (tr["t"][on], true_path[on] - reference_at(tr["t"][on], t, ref))
     paths = [draw_path(out, pos, ref, title=_title(summary, "Flight path"), truth=true_path)]
     paths.append(draw_error(out, t, pos - ref, spans, stats=summary,
                             title=_title(summary, "Position error"), xlabel=xlabel,

@@ -59,6 +59,12 @@ def true_state(msg):
     return lat, lon, float(msg.alt), (float(msg.vn), float(msg.ve), float(msg.vd))
 
 
+def reference_at(ts, t, ref):
+    """The reference ``ref`` (N, 3), flown at times ``t``, at the true samples' times ``ts``
+    (linear between steps)."""
+    return np.column_stack([np.interp(ts, t, ref[:, i]) for i in range(3)])
+
+
 class TruthTrack:
     """The true samples of one flight, in the estimate's frame once aligned."""
 
@@ -150,7 +156,7 @@ class TruthTrack:
         pos = np.asarray(self.pos).reshape(-1, 3)[keep]
         est = np.asarray(self.est).reshape(-1, 3)[keep]
         ref = np.asarray(ref, dtype=float).reshape(-1, 3)
-        r = np.column_stack([np.interp(ts, t, ref[:, i]) for i in range(3)])
+        r = reference_at(ts, t, ref)
         gaps = np.diff(ts)
         gaps = gaps[gaps > 0]
         out = {"source": self.source, "aligned": self.aligned, "samples": int(ts.size),
