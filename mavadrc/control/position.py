@@ -357,6 +357,7 @@ class PositionController:
                                    tilt_max=tilt_max, thrust_min=thrust_min,
                                    thrust_max=thrust_max, g=g,
                                    thrust_estimate_tau=thrust_estimate_tau)
+        self._tpa_rate = float(self._M[G.M_TPA_RATE])  # restored when learning resumes
         self._P = np.stack([axis_params(kind, i, h, gains) for i in range(3)])
         if kind == "adrc":
             # the TD shapes the reference into a motion the vehicle can fly: its acceleration
@@ -490,8 +491,23 @@ class PositionController:
 
     @property
     def learns_thrust(self):
-        """Whether the thrust per acceleration is learnt in flight (``thrust_estimate_tau``)."""
-        return bool(self._M[G.M_TPA_RATE] > 0.0)
+        """Whether the thrust per acceleration is learnt in flight (``thrust_estimate_tau``),
+        paused or not."""
+        return self._tpa_rate > 0.0
+
+    @property
+    def thrust_learning_paused(self):
+        """Whether learning the thrust is paused (:meth:`pause_thrust_learning`)."""
+        return self.learns_thrust and not self._M[G.M_TPA_RATE] > 0.0
+
+    def pause_thrust_learning(self, paused=True):
+        """Hold the thrust per acceleration learnt so far (``paused``), or learn on (the
+        rate ``thrust_estimate_tau`` gave).  A fit of the commanded against the produced
+        acceleration needs the map between them to hold still over its window; the thrust
+        learnt before it (the takeoff) is kept.  No effect on a controller that does not learn
+        the thrust."""
+        if self.learns_thrust:
+            self._M[G.M_TPA_RATE] = 0.0 if paused else self._tpa_rate
 
     @property
     def tilt_limit(self):
