@@ -137,18 +137,85 @@ def test_bundled_vehicles_are_identified_within_15_percent(name):
     assert all(rec["axes"][a]["r2"] > 0.99 for a in "xyz")
 
 
-def test_the_doublets_are_flown_on_the_hover_thrust_told():
-    """The fit needs the map from commanded to produced acceleration to hold still: the
-    identification's controller does not learn the hover thrust (the mission's controller,
-    after the switch, does)."""
+def test_in_process_the_doublets_are_flown_on_the_hover_thrust_told():
+    """The fit needs the map from commanded to produced acceleration to hold still.  In process
+    (the vehicle its own file, told its own hover thrust) the identification's controller keeps
+    the figure told; in flight it learns it in the takeoff and pauses over the identify
+    segment (the next test); the mission's controller, after the switch, learns on."""
     from mavadrc.flight import identification_gains, resolve_gains
     from mavadrc.inprocess import fly_inprocess
 
     m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
     run = fly_inprocess(I.identification_mission(m), kind="ladrc", seed=0)
     assert run.hover_thrust_learnt is None
-    assert identification_gains()["thrust_estimate"] == 0.0
+    assert identification_gains(learn=False)["thrust_estimate"] == 0.0
+    assert identification_gains()["thrust_estimate"] > 0.0
     assert resolve_gains(m.controller, identified=(0.13, 0.13, 0.05))["thrust_estimate"] > 0.0
+
+
+HEAVY = """name: heavy
+vehicle: x500
+controller: {type: ladrc, rate_hz: 100, wc: [2.0, 2.0, 2.5], wo: [10.0, 10.0, 12.5],
+             input_lag: auto}
+trajectory:
+  - takeoff: {altitude: 2.0, speed: 1.0}
+  - hover: {duration: 3}
+  - land: {speed: 0.7}
+sim: {mass_scale: 1.4}
+safety: {geofence: {north: [-10, 10], east: [-10, 10]}, altitude: {max: 8}}
+"""
+
+
+def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_path, monkeypatch):
+    """An x500 40 % heavier than its file, whose hover thrust the companion is told (as PX4 SIH
+    was flown with SIH_MASS 1.4 and MPC_THR_HOVER 0.5), over MAVLink in lockstep.  Told the
+    file's thrust through the takeoff and the doublets, the vertical observer carries the
+    missing weight, every tilt asked for turns 1/1.4 of the acceleration meant, and the
+    doublets measure that map (horizontal gain 0.72, with the drag the leg reads tied to it)
+    instead of the one the mission's controller, learning the thrust, flies.  Learning it in
+    the takeoff, the gain is 0.87 (the learning is not over when the doublets start); paused
+    from the identify segment's start to its end, and carried into the mission's controller."""
+    import io
+
+    from mavadrc.flight import Flight
+    from mavadrc.fly import fly
+
+    seen = []
+    pause = Flight._pause_learning
+
+    def spy(self, t):
+        pause(self, t)
+        seen.append((t, self.ctrl.thrust_learning_paused, self.ctrl.hover_thrust_estimate,
+                     self._identifying(), self._id_span))
+
+    monkeypatch.setattr(Flight, "_pause_learning", spy)
+    path = tmp_path / "heavy.yaml"
+    path.write_text(HEAVY)
+    summary, _ = fly(load_mission(path), lockstep=True, out=tmp_path, figures=False,
+                     progress=False, stream=io.StringIO())
+    axes = summary["identification"]["axes"]
+    told = summary["hover_thrust"]
+    assert summary["landed"]
+    assert min(axes[a]["gain"] for a in "xy") > 0.82, axes
+    assert summary["hover_thrust_learnt"] == pytest.approx(1.4 * told, rel=0.05)
+    t = np.array([x[0] for x in seen])
+    paused = np.array([x[1] for x in seen])
+    hover = np.array([x[2] for x in seen])
+    start, end = next(x[4] for x in seen if x[4] is not None)
+    during = (t >= start) & (t <= end)
+    before = t < start - 1.0
+    assert paused[during].all() and not paused[before].any()
+    held = hover[during][0]
+    assert held > 1.18 * told  # learnt in the takeoff (without: the figure told, 1.0)
+    assert np.ptp(hover[during]) == 0.0  # held over the doublets and the leg
+    # the doublets measure the map they were flown on: the thrust held against the one needed
+    for a in "xy":
+        assert axes[a]["gain"] == pytest.approx(held / (1.4 * told), rel=0.03)
+    # the mission's controller takes the thrust learnt over and learns on from it
+    mission = np.array([not x[3] for x in seen])
+    first = np.argmax(mission)
+    assert mission.any() and abs(hover[first] - hover[first - 1]) < 0.01 * told
+    assert not paused[mission].any()
 
 
 def test_sample_latency_is_identified_as_dead_time_within_one_sample():
