@@ -361,3 +361,41 @@ def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturban
         q_old, t_old = old.update(p, v, [0.0, 0.0, -1.0])
         q_new, t_new = new.update(p, v, [0.0, 0.0, -1.0])
         assert t_new == pytest.approx(t_old, rel=0.02)
+
+
+def test_the_thrust_learning_pauses_holding_what_it_learnt_and_resumes():
+    """pause_thrust_learning: the thrust learnt so far is held while the vertical observer still
+    sees the vehicle lighter than told, and learning goes on when resumed; the controller still
+    counts as learning (a controller taking over adopts what it holds).  No effect on one that
+    does not learn."""
+    from mavadrc.control import PositionController
+
+    g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
+
+    def fly(c, steps, p, v):
+        for _ in range(steps):
+            a, r = c.accel_applied, c.hover_thrust_estimate / (0.5 / k)
+            acc = np.array([r * a[0], r * a[1], g - r * (g - a[2])])
+            p, v = p + h * v + 0.5 * h * h * acc, v + h * acc
+            c.update(p, v, [0.0, 0.0, -1.0])
+        return p, v
+
+    c = PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0,
+                           thrust_estimate_tau=1.0)
+    p, v = np.array([0.0, 0.0, -1.0]), np.zeros(3)
+    c.reset(p, v)
+    p, v = fly(c, 100, p, v)
+    part = c.hover_thrust_estimate
+    assert 0.5 / k < part < 0.49  # learning, not done
+    c.pause_thrust_learning()
+    assert c.learns_thrust and c.thrust_learning_paused
+    p, v = fly(c, 500, p, v)
+    assert c.hover_thrust_estimate == part
+    assert abs(p[2] + 1.0) < 0.01  # the observer carries the rest: the hover holds
+    c.pause_thrust_learning(False)
+    assert not c.thrust_learning_paused
+    fly(c, 1000, p, v)
+    assert c.hover_thrust_estimate == pytest.approx(0.5 / k, rel=0.02)
+    told = PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0)
+    told.pause_thrust_learning(False)
+    assert not told.learns_thrust and not told.thrust_learning_paused
