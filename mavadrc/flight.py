@@ -663,11 +663,19 @@ class Flight(Preflight, GroundPhases, Failsafes):
         return start - MAX_DELAY_S - 0.1, end
 
     def _pause_learning(self, t):
-        """The safe controller learns the hover thrust in the takeoff and holds it over the
-        identify segment's samples (mission time ``t``; :func:`identification_gains`)."""
-        if self._id_windows is not None and self.ctrl.learns_thrust and self._identifying():
+        """Whether the hover thrust is learnt at mission time ``t``: not over the identify
+        segment's samples (the safe controller learns it in the takeoff and holds it there:
+        :func:`identification_gains`), and not from the closing land segment on, where the
+        ground may carry the vehicle before the contact is seen (PX4 SIH, its estimate
+        climbing on the ground: the vertical observer read the ground's push as a lighter
+        vehicle, and the thrust learnt fell from 0.47 to 0.26 by the touchdown)."""
+        if not self.ctrl.learns_thrust:
+            return
+        hold = self._in_final_land(t)
+        if self._id_windows is not None and self._identifying():
             start, end = self._id_data_span()
-            self.ctrl.pause_thrust_learning(start <= t <= end)
+            hold = hold or start <= t <= end
+        self.ctrl.pause_thrust_learning(hold)
 
     def _identify_step(self, s, t, ref_vel):
         """Keep the samples of the identify segment; at its end fit the input model and fly

@@ -507,7 +507,9 @@ def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     0.24 m of gap, was scored as the flight's largest error.  Here the samples drift 3 cm up
     during the hover (the contact comes just before the land segment's end) and climb 0.2 m/s
     from the contact on: the error figures end at the contact (the table keeps the rest;
-    scored, it read 0.19 m)."""
+    scored, it read 0.19 m).  Nor is the ground's push learnt as a lighter vehicle: the thrust
+    learnt is held from the land segment on (learnt on, the Crazyflie, told its own hover
+    thrust, read 0.415 for 0.473; PX4 SIH once 0.26 for 0.47)."""
     srv, link = lossy_vehicle(link_seed=16)
     link.hook, state = _moving_on_the_ground(srv, -0.2, drift=0.03)
     try:
@@ -520,6 +522,7 @@ def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     gap = np.abs(np.asarray(tab["pos_z"]) - np.asarray(tab["ref_z"]))
     assert gap.max() > 0.15  # logged: the climbing estimate against the reference
     assert summary["max_error_m"] < 0.1
+    assert summary["hover_thrust_learnt"] == pytest.approx(summary["hover_thrust"], rel=0.03)
 
 
 def test_a_low_altitude_estimate_still_touches_down_slowly(tmp_path):

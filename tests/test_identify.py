@@ -186,7 +186,7 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     def spy(self, t):
         pause(self, t)
         seen.append((t, self.ctrl.thrust_learning_paused, self.ctrl.hover_thrust_estimate,
-                     self._identifying(), self._id_span))
+                     self._identifying(), self._id_span, self._in_final_land(t)))
 
     monkeypatch.setattr(Flight, "_pause_learning", spy)
     path = tmp_path / "heavy.yaml"
@@ -215,7 +215,9 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     mission = np.array([not x[3] for x in seen])
     first = np.argmax(mission)
     assert mission.any() and abs(hover[first] - hover[first - 1]) < 0.01 * told
-    assert not paused[mission].any()
+    land = np.array([x[5] for x in seen])
+    assert not paused[mission & ~land].any()
+    assert land.any() and paused[land].all()  # held from the land segment on
 
 
 def test_sample_latency_is_identified_as_dead_time_within_one_sample():
