@@ -129,7 +129,8 @@ def identification_gains(learn=True):
     the tilt asked for was 1/1.4 of the one meant): the record (its gains, the drag the leg
     reads through them) described a map the mission's controller, learning the thrust from its
     first step, no longer flew."""
-    return {**default_gains("ladrc", False), "thrust_estimate": THRUST_ESTIMATE_S if learn else 0.0}
+    learning = THRUST_ESTIMATE_S if learn else 0.0
+    return {**default_gains("ladrc", False), "thrust_estimate": learning}
 
 
 def drag_learn_memory(spec, kind=None):
@@ -662,8 +663,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         start, end = self._id_span
         return start - MAX_DELAY_S - 0.1, end
 
-    def _pause_learning(self, t):
-        """Whether the hover thrust is learnt at mission time ``t``: not over the identify
+    def _pause_learning(self, t, final_land):
+        """Pause or resume learning the hover thrust for mission time ``t`` (``final_land``:
+        ``t`` is in the closing land segment).  Not learnt over the identify
         segment's samples (the safe controller learns it in the takeoff and holds it there:
         :func:`identification_gains`), and not from the closing land segment on, where the
         ground may carry the vehicle before the contact is seen (PX4 SIH, its estimate
@@ -671,7 +673,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         vehicle, and the thrust learnt fell from 0.47 to 0.26 by the touchdown)."""
         if not self.ctrl.learns_thrust:
             return
-        hold = self._in_final_land(t)
+        hold = final_land
         if self._id_windows is not None and self._identifying():
             start, end = self._id_data_span()
             hold = hold or start <= t <= end
@@ -1209,8 +1211,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
-        cap = math.radians(self.m.controller.tilt_max_deg) if self._in_final_land(t) else None
-        self._pause_learning(t)
+        final = self._in_final_land(t)
+        cap = math.radians(self.m.controller.tilt_max_deg) if final else None
+        self._pause_learning(t, final)
         q, thrust = self._control_step(s, rc, tilt_cap=cap)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)

@@ -399,7 +399,8 @@ def identification_mission(mission, calm=True):
     # told the vehicle's own hover thrust here, and the kernel cannot pause the learning over
     # the identify segment: it keeps the figure told
     ctrl = ControllerSpec(kind="ladrc", name="identification", rate_hz=spec.rate_hz,
-                          gains=identification_gains(learn=False), tilt_max_deg=spec.tilt_max_deg,
+                          gains=identification_gains(learn=False),
+                          tilt_max_deg=spec.tilt_max_deg,
                           thrust_min=spec.thrust_min, thrust_max=spec.thrust_max)
     segments = [("takeoff", {"altitude": ALTITUDE, "speed": 0.5}, None),
                 ("identify", {}, None)]

@@ -183,8 +183,8 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     seen = []
     pause = Flight._pause_learning
 
-    def spy(self, t):
-        pause(self, t)
+    def spy(self, t, final_land):
+        pause(self, t, final_land)
         seen.append((t, self.ctrl.thrust_learning_paused, self.ctrl.hover_thrust_estimate,
                      self._identifying(), self._id_span, self._in_final_land(t)))
 
