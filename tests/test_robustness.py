@@ -328,6 +328,18 @@ def test_the_linearised_disturbance_response_is_the_closed_form():
     assert np.all(np.isnan(disturbance_response(fast, w, tau=0.13)))  # unstable: no response
 
 
+def _fly_lighter(c, steps, p, v, h=0.01, k=1.0 / 0.7, g=9.80665):
+    """``steps`` of controller ``c`` holding 1 m up on a vehicle 1/k as heavy as told (the
+    thrust the map gives: the specific force it meant times the hover thrust ``c`` now takes
+    over the true one); returns the position and velocity reached."""
+    for _ in range(steps):
+        a, r = c.accel_applied, c.hover_thrust_estimate / (0.5 / k)
+        acc = np.array([r * a[0], r * a[1], g - r * (g - a[2])])
+        p, v = p + h * v + 0.5 * h * h * acc, v + h * acc
+        c.update(p, v, [0.0, 0.0, -1.0])
+    return p, v
+
+
 def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturbance():
     """After the identification the mission's controller takes over (flight.carry_over): one
     that learns too starts from the thrust learnt; one that does not gets the whole vertical
@@ -344,13 +356,7 @@ def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturban
     old = make(1.0)
     p, v = np.array([0.0, 0.0, -1.0]), np.zeros(3)
     old.reset(p, v)
-    for _ in range(1500):
-        # the thrust the map gives, on the true vehicle: the specific force it meant, times the
-        # hover thrust the controller now takes over the true one
-        a, r = old.accel_applied, old.hover_thrust_estimate / (0.5 / k)
-        acc = np.array([r * a[0], r * a[1], g - r * (g - a[2])])
-        p, v = p + h * v + 0.5 * h * h * acc, v + h * acc
-        old.update(p, v, [0.0, 0.0, -1.0])
+    p, v = _fly_lighter(old, 1500, p, v, h, k, g)
     assert old.hover_thrust_estimate == pytest.approx(0.5 / k, rel=0.02)
     for tau, learns in ((1.0, True), (None, False)):
         new = make(tau)
@@ -372,29 +378,21 @@ def test_the_thrust_learning_pauses_holding_what_it_learnt_and_resumes():
 
     g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
 
-    def fly(c, steps, p, v):
-        for _ in range(steps):
-            a, r = c.accel_applied, c.hover_thrust_estimate / (0.5 / k)
-            acc = np.array([r * a[0], r * a[1], g - r * (g - a[2])])
-            p, v = p + h * v + 0.5 * h * h * acc, v + h * acc
-            c.update(p, v, [0.0, 0.0, -1.0])
-        return p, v
-
     c = PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0,
                            thrust_estimate_tau=1.0)
     p, v = np.array([0.0, 0.0, -1.0]), np.zeros(3)
     c.reset(p, v)
-    p, v = fly(c, 100, p, v)
+    p, v = _fly_lighter(c, 100, p, v, h, k, g)
     part = c.hover_thrust_estimate
     assert 0.5 / k < part < 0.49  # learning, not done
     c.pause_thrust_learning()
     assert c.learns_thrust and c.thrust_learning_paused
-    p, v = fly(c, 500, p, v)
+    p, v = _fly_lighter(c, 500, p, v, h, k, g)
     assert c.hover_thrust_estimate == part
     assert abs(p[2] + 1.0) < 0.01  # the observer carries the rest: the hover holds
     c.pause_thrust_learning(False)
     assert not c.thrust_learning_paused
-    fly(c, 1000, p, v)
+    _fly_lighter(c, 1000, p, v, h, k, g)
     assert c.hover_thrust_estimate == pytest.approx(0.5 / k, rel=0.02)
     told = PositionController("ladrc", h=h, hover_thrust=0.5, wc=2.0, wo=10.0)
     told.pause_thrust_learning(False)
