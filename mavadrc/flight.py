@@ -523,7 +523,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._interrupts = 0
         self._exceptions = 0
         self._warned = {}
-        self._descent = collections.deque()  # (t, z) of the last DESCENT_S of flight
+        self._descent = collections.deque()  # (t, z): the land's history (ground.DESCENT_S)
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
         self._last_thrust = None  # the last control step's thrust (landing_tilt)
@@ -1219,7 +1219,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
             self._refine_step(s, t)
         self._identify_step(s, t, rc.vel)
-        self._descent_history(s)
+        self._descent_history(s, final)
         if not self._lifted:
             if lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
                 self._lifted = True

@@ -42,8 +42,17 @@ CUT_S = 0.5  # thrust ramp down after touchdown
 #: the tilt limit (deg) of the final descent past the mission's end, as PX4 limits its own
 #: landing (MPC_TILTMAX_LND's default)
 TOUCHDOWN_TILT_DEG = 12.0
-#: s of position history before touchdown the touchdown speed is judged over
+#: s of position history kept before the final land segment (the touchdown speed is judged on
+#: the history of that segment, bounded at DESCENT_KEEP_S)
 DESCENT_S = 2.0
+DESCENT_KEEP_S = 60.0
+#: the touchdown speed is judged over the CONTACT_S s before the estimate's descent ended: where
+#: the height estimate first came within DESCENT_END_Z m of its lowest point
+CONTACT_S = 1.0
+DESCENT_END_Z = 0.02
+#: a touchdown read further than this (m) from the takeoff spot's height is warned of: the
+#: height estimate drifted, and the touchdown speed read from it is uncertain
+TOUCHDOWN_HEIGHT_WARN = 0.3
 
 
 def spool_thrust(t, start_at, hover):
@@ -73,8 +82,7 @@ def lifted_off(height, vz):
 
 
 def touchdown_speed(descent, window=0.1):
-    """The fastest descent in ``descent`` ((t, z NED) of the last :data:`DESCENT_S` before
-    touchdown was seen), each sample against the newest one at least ``window`` s older, m/s
+    """The fastest descent in ``descent`` ((t, z NED) samples), each sample against the newest one at least ``window`` s older, m/s
     (0 if there is none).
 
     The autopilot's position estimate, not the truth, and not its velocity estimate: flown
@@ -90,6 +98,28 @@ def touchdown_speed(descent, window=0.1):
             t0, z0 = descent[j]
             best = max(best, (z - z0) / (t - t0))
     return best
+
+
+def descent_end(descent):
+    """The time (s) the estimate's descent ended in ``descent`` ((t, z NED) samples): the first
+    sample within :data:`DESCENT_END_Z` of the lowest point.  None if there are no samples.
+
+    On the ground the height estimate goes on moving: flown on PX4 SIH, it climbed at up to
+    0.2 m/s for seconds after the contact, so touchdown was seen 1-4 s after it, and the 2 s
+    before that held only the climb: the touchdown speed read 0.00 for true 0.23-0.35 m/s."""
+    if not descent:
+        return None
+    deepest = max(z for _, z in descent)
+    return next(t for t, z in descent if z >= deepest - DESCENT_END_Z)
+
+
+def contact_speed(descent):
+    """The touchdown speed (m/s) judged over the :data:`CONTACT_S` before the estimate's descent
+    ended (:func:`descent_end`), and that end's time (None without samples)."""
+    end = descent_end(descent)
+    if end is None:
+        return 0.0, None
+    return touchdown_speed([(t, z) for t, z in descent if end - CONTACT_S - 1e-9 <= t <= end]), end
 
 
 def touchdown_reference(start, speed, tau):
@@ -231,7 +261,7 @@ class GroundPhases:
             *touchdown_reference(self._descent_from, speed, tau + lead), self._final_yaw, 0.0)
         q, thrust = self._control_step(s, rc, tilt_cap=math.radians(TOUCHDOWN_TILT_DEG))
         self.recorder.step(t, "touchdown", r, s, self.ctrl, q, thrust, scored=False)
-        self._descent_history(s)
+        self._descent_history(s, final=True)
         how = self._ground_contact(s, pos[2], self._phase_wall)
         if how is not None:
             # on the ground before the land segment ended, where the height estimate had
@@ -277,12 +307,21 @@ class GroundPhases:
     def _touched_down(self, s, thrust, how):
         """Touchdown seen on sample ``s`` (``how``: :meth:`_ground_contact`'s answer): judge its
         speed, cut the thrust."""
-        self.touchdown_speed = touchdown_speed(self._descent)
+        self.touchdown_speed, end = contact_speed(self._descent)
         self.touchdown_seen = True
         self.touchdown_height = float(self.origin[2] - s.pos[2])
         self.ctrl.hold_disturbance()
         self._cut_from = thrust
-        self.say(f"touchdown at {self.touchdown_speed:.2f} m/s ({how})")
+        late = s.t - end if end is not None else 0.0
+        where = (f"; the estimate's descent ended {late:.1f} s before, where it is judged"
+                 if late >= 0.5 else "")
+        self.say(f"touchdown at {self.touchdown_speed:.2f} m/s ({how}{where})")
+        if abs(self.touchdown_height) > TOUCHDOWN_HEIGHT_WARN:
+            text = (f"touchdown read {abs(self.touchdown_height):.2f} m "
+                    f"{'above' if self.touchdown_height > 0 else 'below'} the takeoff spot: the "
+                    "height estimate drifted, and the touchdown speed read from it is uncertain")
+            self.say(f"warning: {text}")
+            self.warnings.append(text)
         if self.touchdown_speed > self.m.safety.max_touchdown_speed:
             text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
                     f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
@@ -290,9 +329,13 @@ class GroundPhases:
             self.warnings.append(text)
         self._enter("cut", s)
 
-    def _descent_history(self, s):
+    def _descent_history(self, s, final):
+        """Keep the position history the touchdown speed is judged on: the last
+        :data:`DESCENT_S` before the final land segment, all of it (to :data:`DESCENT_KEEP_S`)
+        from there on (``final``)."""
         self._descent.append((s.t, float(s.pos[2])))
-        while self._descent[0][0] < s.t - DESCENT_S:
+        keep = DESCENT_KEEP_S if final else DESCENT_S
+        while self._descent[0][0] < s.t - keep:
             self._descent.popleft()
 
     def _land_speed(self):

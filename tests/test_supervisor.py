@@ -241,3 +241,30 @@ def test_touchdown_speed_is_the_fastest_descent_of_the_position_estimate():
     # uneven intervals (telemetry at a ragged rate) still give the true speed
     tu = np.cumsum(np.r_[0.0, np.tile([0.008, 0.05, 0.016], 30)])
     assert touchdown_speed(_descent(tu, lambda tt: 0.4 * tt)) == pytest.approx(0.4, abs=1e-9)
+
+
+def test_touchdown_speed_is_judged_where_the_descent_ended_not_where_touchdown_was_seen():
+    """PX4 SIH's height estimate climbed at up to 0.2 m/s on the ground after the contact, so
+    touchdown was seen seconds later: judged on the last 2 s before that, the speed read 0.00
+    for true 0.23-0.35 m/s.  It is judged where the estimate's descent ended."""
+    from mavadrc.ground import CONTACT_S, contact_speed, descent_end, touchdown_speed
+    t = np.arange(0.0, 8.0, 0.01)
+    # 0.5 m/s down, contact at 3 s, then the estimate climbs 0.15 m/s for 5 s on the ground
+    z = _descent(t, lambda tt: -1.5 + 0.5 * tt if tt <= 3.0 else -0.15 * (tt - 3.0))
+    assert 3.0 - 0.05 <= descent_end(z) <= 3.0  # within DESCENT_END_Z (2 cm) of the lowest
+    speed, end = contact_speed(z)
+    assert speed == pytest.approx(0.5, abs=0.01) and 2.95 <= end <= 3.0
+    assert touchdown_speed([p for p in z if p[0] >= 6.0]) == 0.0  # the old 2 s rule's answer
+    # the judgement looks back CONTACT_S only: a fast descent long before the contact (1 m/s
+    # until 1.5 s up high, then 0.3 m/s) is not the touchdown speed
+    z = _descent(t, lambda tt: -3.0 + tt if tt <= 1.5 else
+                 (-1.5 + 0.3 * (tt - 1.5) if tt <= 6.5 else 0.0))
+    assert contact_speed(z)[0] == pytest.approx(0.3, abs=0.01)
+    assert 6.5 - 1.5 > CONTACT_S
+    # noise on the ground within DESCENT_END_Z does not move the end past the contact
+    rng = np.random.default_rng(1)
+    z = [(tt, zz + (0.005 * rng.standard_normal() if tt > 3.0 else 0.0))
+         for tt, zz in _descent(t, lambda tt: -1.5 + 0.5 * min(tt, 3.0))]
+    assert descent_end(z) <= 3.0 + 1e-9
+    assert contact_speed(z)[0] == pytest.approx(0.5, abs=0.02)
+    assert contact_speed([]) == (0.0, None)
