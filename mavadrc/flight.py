@@ -530,7 +530,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._tipped = False  # the attitude past TIPPED_COS after touchdown
         self._carried = Held()  # the ground carrying the vehicle mid-mission
         self._far = Held()  # the vehicle past max_tracking_error off the reference
-        self._settled_gap = 0.0  # the reference's lead below the vehicle when it came to rest
+        self._settled_at = None  # (reference, vehicle) down when the vehicle came to rest
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
         self._error = None  # why the flight was refused before anything flew

@@ -28,10 +28,12 @@ LIFTOFF_CLIMB = 0.2
 #: touchdown: the vertical speed stays under this (m/s) for this long (s), the reference below
 SETTLED_SPEED = 0.1
 SETTLED_S = 0.3
-#: and, for the speed alone to say so, the reference has gone on this much further down than the
-#: vehicle since the speed fell under SETTLED_SPEED (m): a reference pausing where a land
-#: segment's final leg begins, 0.5 m up, with a slow loop 8 cm behind it and slowing, read as
-#: settled on PX4 SIH; the thrust was cut and the vehicle fell 0.5 m (2.4 m/s)
+#: and, for the speed alone to say so, the reference has gone on this much further down, both
+#: itself and against the vehicle, since the speed fell under SETTLED_SPEED (m): a reference
+#: pausing where a land segment's final leg begins, 0.5 m up, with a slow loop 8 cm behind it
+#: and slowing, read as settled on PX4 SIH; the thrust was cut and the vehicle fell 0.5 m
+#: (2.4 m/s).  A heavier vehicle (PX4 SIH at 1.4 kg) rose 3.5 cm back from that pausing
+#: reference, the gap grew without the reference moving, and it fell 0.67 m (2.3-2.8 m/s)
 GAP_GROWTH = 0.05
 #: touchdown also: the vertical disturbance estimate holds up this share of g (the ground carries
 #: the vehicle's weight), the reference below it, for SETTLED_S, whatever the velocity reads
@@ -281,7 +283,7 @@ class GroundPhases:
         under the vehicle, and the ground carrying it (the vertical disturbance estimate
         holding up :data:`CARRIED_SHARE` of g: the thrust is down and the vehicle does not
         fall) or it hardly moving vertically while the reference goes on :data:`GAP_GROWTH`
-        further down.  The second holds when the estimate's velocity does not:
+        further down, itself and against the vehicle.  The second holds when the estimate's velocity does not:
         PX4 SIH's read a 0.25-0.5 m/s descent while the vehicle sat on the ground, and its own
         land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound."""
         below = ref_z > s.pos[2] + 0.05
@@ -290,7 +292,7 @@ class GroundPhases:
         if below and (still or carried):
             if self._settled_since is None:
                 self._settled_since = s.t
-                self._settled_gap = ref_z - float(s.pos[2])
+                self._settled_at = (ref_z, float(s.pos[2]))
         else:
             self._settled_since = None
         if self.landed_state == M.MAV_LANDED_STATE_ON_GROUND and \
@@ -299,8 +301,12 @@ class GroundPhases:
         if self._settled_since is not None and s.t - self._settled_since >= SETTLED_S:
             if carried:
                 return "the ground carries its weight"
-            # slow, and the reference going on below without it (not just paused ahead)
-            if ref_z - float(s.pos[2]) - self._settled_gap >= GAP_GROWTH:
+            # slow, and the reference going on below without it: not paused ahead (the gap
+            # then grows only if the vehicle rises back from it)
+            ref0, z0 = self._settled_at
+            went_on = ref_z - ref0
+            grew = (ref_z - float(s.pos[2])) - (ref0 - z0)
+            if went_on >= GAP_GROWTH and grew >= GAP_GROWTH:
                 return "settled"
         return None
 
