@@ -47,7 +47,8 @@ from .control import PositionController
 from .control.geometry import GRAVITY
 from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, GroundPhases,
+from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, TAKEOFF_RAMP_PER_S,
+                     TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, GroundPhases,
                      landing_tilt, lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
@@ -531,6 +532,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._carried = Held()  # the ground carrying the vehicle mid-mission
         self._far = Held()  # the vehicle past max_tracking_error off the reference
         self._settled_at = None  # (reference, vehicle) down when the vehicle came to rest
+        self.takeoff_wait = 0.0  # s the takeoff's reference waited for the vehicle to lift off
+        self._waiting = False  # this sample's reference waits for the lift-off
+        self._waited_capped = 0.0  # s of that waiting with the thrust at its bound
+        self.liftoff_hover = None  # the hover thrust taken at lift-off, after a wait
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused = False
         self._error = None  # why the flight was refused before anything flew
@@ -983,6 +988,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self.mission_start is None:
             self.truth.at_rest(msg, s.pos)
             return
+        if self._waiting:
+            return  # the mission's clock stands still: no time to put it at
         dt = 0.0 if self.lockstep else max(0.0, time.monotonic() - self._last_sample_wall)
         self.truth.add(s.t + dt - self._mission_t0, msg, s.pos + s.vel * dt)
 
@@ -1202,6 +1209,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._left_control():
             return
         t = s.t - self._mission_t0
+        self._waiting = not self._lifted and self._takeoff_waits(s, t)
+        if self._waiting:  # the mission clock stops: this sample flies to the last reference
+            step = s.dt if s.dt is not None else self.h
+            self._mission_t0 += step
+            self.mission_start = self._mission_t0
+            self.takeoff_wait += step
+            t = s.t - self._mission_t0
         r = self._reference(t)  # the sample's: what its error is scored against
         lead = self._lead(s)
         rc = r if lead == 0.0 else self._reference(t + lead)
@@ -1211,6 +1225,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._yaw_offset -= max(-step, min(step, self._yaw_offset))
             r = Reference(r.pos, r.vel, r.acc, r.yaw + self._yaw_offset, r.yaw_rate)
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
+        if self._waiting:
+            rc = self._waiting_reference(s, rc)
         final = self._in_final_land(t)
         cap = math.radians(self.m.controller.tilt_max_deg) if final else None
         self._pause_learning(t, final)
@@ -1223,8 +1239,19 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if not self._lifted:
             if lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
                 self._lifted = True
+                if self.takeoff_wait > 0.0:
+                    self.liftoff_hover = self.ctrl.hover_thrust_estimate
+                    self.say(f"lifted off: the takeoff waited {self.takeoff_wait:.1f} s, the "
+                             f"hover thrust raised to {self.ctrl.hover_thrust_estimate:.3f} "
+                             f"(told {self.hover:.3f})")
             else:
                 self.ctrl.hold_disturbance()  # on the ground: the ground's push is no disturbance
+        if self._waiting:
+            why = self._raise_takeoff_thrust(s)
+            if why is not None:
+                return self._escalate("ground", why)
+            self._check_link()
+            return  # the reference waited: nothing of the mission to score, log or count
         self.steps += 1
         # the identification is not the mission: its doublets, flown on the safe gains, are
         # logged but not scored
@@ -1265,6 +1292,45 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return
         self.console.progress(self._segment_name(t), t, self.traj.duration,
                               float(np.linalg.norm(s.pos - r.pos)), self._link_line)
+
+    def _takeoff_waits(self, s, t):
+        """Whether the takeoff's reference, at mission time ``t``, has climbed
+        :data:`~mavadrc.ground.TAKEOFF_WAIT_M` above a vehicle still on the ground (sample
+        ``s``): it then waits there.  A vehicle heavier than told does not rise on the thrust
+        the loop expected to lift it; running on, the reference left PX4 SIH at 1.4 kg (told
+        1.0) 1.1 m below it on the ground for 3.4 s, and it leapt after it at 0.4 m/s."""
+        if self.takeover_in_air:
+            return False
+        return float(s.pos[2] - self._reference(t).pos[2]) > TAKEOFF_WAIT_M
+
+    @staticmethod
+    def _waiting_reference(s, rc):
+        """The reference a waiting takeoff flies to: ``rc`` held vertically at rest
+        :data:`~mavadrc.ground.TAKEOFF_WAIT_M` above the vehicle's estimate.  Held where the
+        wait began instead, an estimate sinking on the ground (PX4 SIH's read 0.3 m of descent
+        in a second of waiting) grew the error the vertical observer learns a weight from: it
+        learnt 5.9 m/s^2 where 3.9 were missing, and the lift-off overshot 0.42 m."""
+        pos = np.array([rc.pos[0], rc.pos[1], float(s.pos[2]) - TAKEOFF_WAIT_M])
+        vel = np.array([rc.vel[0], rc.vel[1], 0.0])
+        acc = np.array([rc.acc[0], rc.acc[1], 0.0])
+        return Reference(pos, vel, acc, rc.yaw, rc.yaw_rate)
+
+    def _raise_takeoff_thrust(self, s):
+        """While the takeoff waits: the thrust per acceleration up by TAKEOFF_RAMP_PER_S of
+        itself per second, as an autopilot ramps its takeoff thrust until the vehicle lifts
+        off.  Why the flight must end, once it has sat at the bound for TAKEOFF_WAIT_MAX_S."""
+        step = s.dt if s.dt is not None else self.h
+        if self.takeoff_wait <= step + 1e-9:
+            self.say(f"still on the ground {TAKEOFF_WAIT_M:g} m below the takeoff's reference: "
+                     "the reference waits, the thrust rises until it lifts off")
+        self.ctrl.raise_thrust(1.0 + TAKEOFF_RAMP_PER_S * step)
+        if self.ctrl.thrust_at_most:
+            self._waited_capped += step
+            if self._waited_capped >= TAKEOFF_WAIT_MAX_S:
+                return (f"the vehicle did not lift off: {self.takeoff_wait:.0f} s on the ground "
+                        f"with the hover thrust raised to {self.ctrl.hover_thrust_estimate:.2f} "
+                        f"(told {self.hover:.2f})")
+        return None
 
     def _link_line(self):
         loss = self.gate.recent_loss()
@@ -1454,6 +1520,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
             # the hover thrust learnt in flight (thrust_estimate), against the one told above
             summary["hover_thrust_learnt"] = (self.ctrl.hover_thrust_estimate
                                               if self.ctrl.learns_thrust else None)
+            # s the takeoff's reference waited for the vehicle to lift off (0: it never did),
+            # and the hover thrust it had been raised to when it did (None: not raised)
+            summary["takeoff_wait_s"] = round(self.takeoff_wait, 3)
+            summary["liftoff_hover_thrust"] = self.liftoff_hover
             # the horizontal drag learnt along the mission (drag_learn), against its start
             summary["drag_learnt"] = None if self._learner is None else self._learner.record()
         if self.identification is not None:

@@ -22,6 +22,13 @@ from .mission import FINAL_SPEED
 from .trajectories import Reference
 
 SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
+#: the takeoff waits for the vehicle: while it is still on the ground and the reference has
+#: climbed this far above it (m), the mission clock stops (the reference waits) and the thrust
+#: per acceleration rises by TAKEOFF_RAMP_PER_S of itself per second, until it lifts off
+TAKEOFF_WAIT_M = 0.15
+TAKEOFF_RAMP_PER_S = 0.15
+#: s of waiting with the thrust at its bound (twice the hover thrust told) before giving up
+TAKEOFF_WAIT_MAX_S = 5.0
 #: lift-off: this high above the takeoff spot (m), or climbing faster than this (m/s)
 LIFTOFF_HEIGHT = 0.05
 LIFTOFF_CLIMB = 0.2

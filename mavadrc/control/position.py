@@ -509,6 +509,21 @@ class PositionController:
         if self.learns_thrust:
             self._M[G.M_TPA_RATE] = 0.0 if paused else self._tpa_rate
 
+    def raise_thrust(self, factor):
+        """Multiply the thrust per acceleration by ``factor`` (> 1), within TPA_RANGE of the
+        figure told; returns the hover thrust it now takes.  For a takeoff waiting on the
+        ground: a vehicle that does not rise on the thrust the loop expected to lift it is
+        heavier than told, whatever the controller (PD too)."""
+        hi = self._M[G.M_TPA0] * TPA_RANGE
+        self._M[G.M_TPA] = min(self._M[G.M_TPA] * float(factor), hi)
+        return self.hover_thrust_estimate
+
+    @property
+    def thrust_at_most(self):
+        """Whether the thrust per acceleration is at its bound, TPA_RANGE times the figure
+        told (:meth:`raise_thrust` can raise it no further)."""
+        return self._M[G.M_TPA] >= self._M[G.M_TPA0] * TPA_RANGE * (1.0 - 1e-9)
+
     @property
     def tilt_limit(self):
         """The tilt limit (rad) the acceleration map holds the attitude setpoint to."""
