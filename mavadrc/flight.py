@@ -524,6 +524,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._interrupts = 0
         self._exceptions = 0
         self._warned = {}
+        self._warned_text = {}  # key: the text _warn_once last kept for it
         self._descent = collections.deque()  # (t, z): the land's history (ground.DESCENT_S)
         self._attitudes = []  # (t, roll, pitch) while the controller flies
         self._settled_since = None
@@ -558,13 +559,21 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return "unknown mode"
         return mode_name(self.link.autopilot, custom_mode)
 
-    def _warn_once(self, key, text, every=5.0):
+    def _warn_once(self, key, text, every=5.0, latest=False):
+        """Say ``text`` as a warning, at most once every ``every`` s for ``key``, and keep it in
+        the summary's warnings once; ``latest``: the summary keeps only the latest said for
+        ``key`` (a reading that changes as the flight goes on: a faulty link's loss, said every
+        5 s, once left eleven "X % of the samples lost" in one summary)."""
         now = time.monotonic()
         if now - self._warned.get(key, -math.inf) >= every:
             self._warned[key] = now
             self.say(f"warning: {text}")
-            if text not in self.warnings:
+            if latest and key in self._warned_text:
+                old = self._warned_text[key]
+                self.warnings[self.warnings.index(old)] = text
+            elif text not in self.warnings:
                 self.warnings.append(text)
+            self._warned_text[key] = text
 
     # --- the run -------------------------------------------------------------------------------
 
@@ -1344,7 +1353,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return self._escalate("link", why)
         warn = self.supervisor.link_warning(self.gate)
         if warn is not None:
-            self._warn_once("link", warn)
+            self._warn_once("link", warn, latest=True)
 
     def _left_control(self):
         """The pilot or a failsafe took the vehicle: stop commanding, watch it land.  Judged only

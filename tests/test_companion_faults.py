@@ -106,6 +106,24 @@ def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
     assert "lost" in text  # the console said so
 
 
+def test_a_changing_link_warning_is_kept_once_in_the_summary():
+    """A faulty link's loss is said as it changes (every 5 s); the summary keeps the latest
+    reading once (a flight behind 5 % loss once kept eleven), beside the other warnings."""
+    import types
+
+    said = []
+    f = types.SimpleNamespace(_warned={}, _warned_text={}, warnings=[], say=said.append)
+    for text in ("3.0 % of the samples lost", "a 0.120 s gap between samples",
+                 "6.5 % of the samples lost"):
+        Flight._warn_once(f, "link", text, every=0.0, latest=True)
+    Flight._warn_once(f, "margin", "the delay margin is short", every=0.0)
+    Flight._warn_once(f, "link", "4.0 % of the samples lost", every=0.0, latest=True)
+    assert f.warnings == ["4.0 % of the samples lost", "the delay margin is short"]
+    assert len(said) == 5  # the console said each
+    Flight._warn_once(f, "margin", "the delay margin is short", every=0.0)
+    assert f.warnings.count("the delay margin is short") == 1
+
+
 def test_one_nan_sample_changes_nothing_visible(tmp_path):
     srv, link = lossy_vehicle(link_seed=4)
     try:
