@@ -1218,14 +1218,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._left_control():
             return
         t = s.t - self._mission_t0
-        self._waiting = not self._lifted and self._takeoff_waits(s, t)
+        r = self._reference(t)  # the sample's: what its error is scored against
+        self._waiting = not self._lifted and self._takeoff_waits(s, r)
         if self._waiting:  # the mission clock stops: this sample flies to the last reference
             step = s.dt if s.dt is not None else self.h
             self._mission_t0 += step
             self.mission_start = self._mission_t0
             self.takeoff_wait += step
             t = s.t - self._mission_t0
-        r = self._reference(t)  # the sample's: what its error is scored against
+            r = self._reference(t)
         lead = self._lead(s)
         rc = r if lead == 0.0 else self._reference(t + lead)
         rc = self._feedforward(rc, t + lead)
@@ -1302,15 +1303,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.console.progress(self._segment_name(t), t, self.traj.duration,
                               float(np.linalg.norm(s.pos - r.pos)), self._link_line)
 
-    def _takeoff_waits(self, s, t):
-        """Whether the takeoff's reference, at mission time ``t``, has climbed
+    def _takeoff_waits(self, s, r):
+        """Whether the takeoff's reference ``r`` (the sample's) has climbed
         :data:`~mavadrc.ground.TAKEOFF_WAIT_M` above a vehicle still on the ground (sample
         ``s``): it then waits there.  A vehicle heavier than told does not rise on the thrust
         the loop expected to lift it; running on, the reference left PX4 SIH at 1.4 kg (told
         1.0) 1.1 m below it on the ground for 3.4 s, and it leapt after it at 0.4 m/s."""
         if self.takeover_in_air:
             return False
-        return float(s.pos[2] - self._reference(t).pos[2]) > TAKEOFF_WAIT_M
+        return float(s.pos[2] - r.pos[2]) > TAKEOFF_WAIT_M
 
     @staticmethod
     def _waiting_reference(s, rc):

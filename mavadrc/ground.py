@@ -91,8 +91,8 @@ def lifted_off(height, vz):
 
 
 def touchdown_speed(descent, window=0.1):
-    """The fastest descent in ``descent`` ((t, z NED) samples), each sample against the newest one at least ``window`` s older, m/s
-    (0 if there is none).
+    """The fastest descent in ``descent`` ((t, z NED) samples), each sample against the newest
+    one at least ``window`` s older, m/s (0 if there is none).
 
     The autopilot's position estimate, not the truth, and not its velocity estimate: flown
     against PX4 SIH's true state, the velocity estimate near the ground was biased (a climb
@@ -128,7 +128,8 @@ def contact_speed(descent):
     end = descent_end(descent)
     if end is None:
         return 0.0, None
-    return touchdown_speed([(t, z) for t, z in descent if end - CONTACT_S - 1e-9 <= t <= end]), end
+    window = [(t, z) for t, z in descent if end - CONTACT_S - 1e-9 <= t <= end]
+    return touchdown_speed(window), end
 
 
 def touchdown_reference(start, speed, tau):
@@ -286,13 +287,13 @@ class GroundPhases:
     def _ground_contact(self, s, ref_z, since_wall):
         """Whether the vehicle is on the ground while the reference (down ``ref_z``) goes on
         below it: None if not, else how it was seen: the autopilot says so (ON_GROUND, told after
-        ``since_wall``), or the samples: for SETTLED_S the reference more than 5 cm
-        under the vehicle, and the ground carrying it (the vertical disturbance estimate
-        holding up :data:`CARRIED_SHARE` of g: the thrust is down and the vehicle does not
-        fall) or it hardly moving vertically while the reference goes on :data:`GAP_GROWTH`
-        further down, itself and against the vehicle.  The second holds when the estimate's velocity does not:
-        PX4 SIH's read a 0.25-0.5 m/s descent while the vehicle sat on the ground, and its own
-        land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound."""
+        ``since_wall``), or the samples: for SETTLED_S the reference more than 5 cm under the
+        vehicle, and the ground carrying it (the vertical disturbance estimate holding up
+        :data:`CARRIED_SHARE` of g: the thrust is down and the vehicle does not fall) or it
+        hardly moving vertically while the reference goes on :data:`GAP_GROWTH` further down,
+        itself and against the vehicle.  The second holds when the estimate's velocity does
+        not: PX4 SIH's read a 0.25-0.5 m/s descent while the vehicle sat on the ground, and its
+        own land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound."""
         below = ref_z > s.pos[2] + 0.05
         still = abs(s.vel[2]) < SETTLED_SPEED
         carried = float(self.ctrl.z[2, 2]) < -CARRIED_SHARE * GRAVITY

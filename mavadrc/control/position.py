@@ -511,12 +511,11 @@ class PositionController:
 
     def raise_thrust(self, factor):
         """Multiply the thrust per acceleration by ``factor`` (> 1), within TPA_RANGE of the
-        figure told; returns the hover thrust it now takes.  For a takeoff waiting on the
-        ground: a vehicle that does not rise on the thrust the loop expected to lift it is
-        heavier than told, whatever the controller (PD too)."""
+        figure told.  For a takeoff waiting on the ground: a vehicle that does not rise on the
+        thrust the loop expected to lift it is heavier than told, whatever the controller (PD
+        too)."""
         hi = self._M[G.M_TPA0] * TPA_RANGE
         self._M[G.M_TPA] = min(self._M[G.M_TPA] * float(factor), hi)
-        return self.hover_thrust_estimate
 
     @property
     def thrust_at_most(self):
