@@ -331,16 +331,15 @@ class GroundPhases:
                  if late >= 0.5 else "")
         self.say(f"touchdown at {self.touchdown_speed:.2f} m/s ({how}{where})")
         if abs(self.touchdown_height) > TOUCHDOWN_HEIGHT_WARN:
-            text = (f"touchdown read {abs(self.touchdown_height):.2f} m "
-                    f"{'above' if self.touchdown_height > 0 else 'below'} the takeoff spot: the "
-                    "height estimate drifted, and the touchdown speed read from it is uncertain")
-            self.say(f"warning: {text}")
-            self.warnings.append(text)
+            self._warn_once("touchdown_height", (
+                f"touchdown read {abs(self.touchdown_height):.2f} m "
+                f"{'above' if self.touchdown_height > 0 else 'below'} the takeoff spot: the "
+                "height estimate drifted, and the touchdown speed read from it is uncertain"),
+                every=0.0)
         if self.touchdown_speed > self.m.safety.max_touchdown_speed:
-            text = (f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
-                    f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}")
-            self.say(f"warning: {text}")
-            self.warnings.append(text)
+            self._warn_once("hard_touchdown", (
+                f"a hard touchdown: {self.touchdown_speed:.2f} m/s, above "
+                f"safety.max_touchdown_speed {self.m.safety.max_touchdown_speed:g}"), every=0.0)
         self._enter("cut", s)
 
     def _descent_history(self, s, final):
