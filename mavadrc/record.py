@@ -166,10 +166,29 @@ def error_figures(t, ref, pos, settle_s=0.0):
     }
 
 
+#: a swing is a limit cycle when at least this share of its power (0.2-10 Hz) lies within
+#: :data:`LIMIT_CYCLE_BAND_HZ` of its strongest frequency.  Measured on the real autopilots'
+#: SITLs: the limit cycles of fast gains with no input model (ArduCopter and PX4 SIH, +-28 deg
+#: at 0.9-1.0 Hz) put 0.99-1.00 there; PX4 SIH's swing on `x500_gusts` (5-6 deg at 1.0-1.2 Hz,
+#: the loop answering its position estimate's noise: README) 0.32-0.58, its safe hover 0.51-0.55
+LIMIT_CYCLE_SHARE = 0.8
+#: half-width (Hz) of the band around the peak a limit cycle's power lies in (at least 2.5
+#: frequency bins of the record: the main lobe of a tone under the Hann window)
+LIMIT_CYCLE_BAND_HZ = 0.15
+#: a shorter record (s) cannot tell a tone from a narrow band: the verdict is then None
+LIMIT_CYCLE_MIN_S = 10.0
+
+
 def attitude_oscillation(t, roll, pitch, window_s=1.0):
     """Roll/pitch oscillation of a flight: the 99th percentile of |angle - its 1 s running mean|
     (deg, the worse axis) and the strongest frequency of that axis (Hz, 0.2-10 Hz), or None with
     less than 3 s of attitude.  A limit cycle shows here however good the position error looks.
+
+    And what kind of swing it is: ``concentration``, the share of that axis's swing power
+    (0.2-10 Hz) within :data:`LIMIT_CYCLE_BAND_HZ` of its peak, and ``limit_cycle``, whether
+    that share is at least :data:`LIMIT_CYCLE_SHARE` (None on a record shorter than
+    :data:`LIMIT_CYCLE_MIN_S`).  A limit cycle is one tone, sustained; a loop's resonance
+    driven by noise or wind spreads over its band and comes and goes.
     """
     t = np.asarray(t, dtype=float)
     if t.size < 10 or t[-1] - t[0] < 3.0:
@@ -185,11 +204,21 @@ def attitude_oscillation(t, roll, pitch, window_s=1.0):
         if best is None or amp > best[0]:
             best = (amp, resid)
     amp, resid = best
-    spectrum = np.abs(np.fft.rfft(resid * np.hanning(resid.size)))
+    power = np.abs(np.fft.rfft(resid * np.hanning(resid.size))) ** 2
     freq = np.fft.rfftfreq(resid.size, dt)
     band = (freq >= 0.2) & (freq <= 10.0)
-    f_peak = float(freq[band][np.argmax(spectrum[band])]) if band.any() else None
-    return {"amplitude_deg": amp, "frequency_hz": f_peak}
+    if not band.any():
+        return {"amplitude_deg": amp, "frequency_hz": None, "concentration": None,
+                "limit_cycle": None}
+    f_peak = float(freq[band][np.argmax(power[band])])
+    half = max(LIMIT_CYCLE_BAND_HZ, 2.5 * float(freq[1]))
+    total = float(power[band].sum())
+    share = float(power[band & (np.abs(freq - f_peak) <= half)].sum()) / total if total > 0 \
+        else None
+    long_enough = resid.size * dt >= LIMIT_CYCLE_MIN_S
+    verdict = bool(share >= LIMIT_CYCLE_SHARE) if share is not None and long_enough else None
+    return {"amplitude_deg": amp, "frequency_hz": f_peak, "concentration": share,
+            "limit_cycle": verdict}
 
 
 class FlightRecord:

@@ -262,7 +262,8 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     """Over MAVLink (lockstep): the bundled Crazyflie with its attitude loop at 0.45x (63 % in
     about 0.27 s) flies thesis_spiral_wind.yaml; identified in flight, the mission's gains
     (chosen for the file's 0.125 s) are slowed by the ratio, said on the console and in
-    summary.json, and the spiral flies without a limit cycle."""
+    summary.json, and the spiral flies without a limit cycle: the summary's warning of one,
+    predicted from the margin, says it was not seen."""
     from mavadrc.cli import main
     text = Path("configs/missions/thesis_spiral_wind.yaml").read_text()
     text = text.replace("sim: {seed: 1}", "sim: {seed: 1, attitude_bandwidth_scale: 0.45}")
@@ -280,6 +281,11 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert 0.3 < f < 0.7
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * f, abs=0.01)
     assert s["attitude_oscillation"]["amplitude_deg"] < 4.0
+    # the margin's warning (a limit cycle likely) is held against the swing flown
+    assert s["attitude_oscillation"]["limit_cycle"] is False
+    (warned,) = [w for w in s["warnings"] if w.startswith("the delay margin")]
+    assert "; measured: +-" in warned and warned.endswith("not the limit cycle predicted")
+    assert "the delay margin's warning against what was flown" in out
     assert s["after_settle"]["max_error_m"] < MAX_SLOWED_SPIRAL_M
 
 
