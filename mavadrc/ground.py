@@ -35,6 +35,11 @@ LIFTOFF_CLIMB = 0.2
 #: touchdown: the vertical speed stays under this (m/s) for this long (s), the reference below
 SETTLED_SPEED = 0.1
 SETTLED_S = 0.3
+#: the speed is the velocity estimate's, or the position estimate's over this window (s): on
+#: PX4 SIH the velocity estimate once read a 0.2-0.25 m/s descent for 6 s while the vehicle sat
+#: on the ground and its position estimate moved 0.01-0.03 m/s; touchdown went unseen, the flight
+#: ended on its bound and PX4's land mode landed it
+STILL_WINDOW_S = 0.5
 #: and, for the speed alone to say so, the reference has gone on this much further down, both
 #: itself and against the vehicle, since the speed fell under SETTLED_SPEED (m): a reference
 #: pausing where a land segment's final leg begins, 0.5 m up, with a slow loop 8 cm behind it
@@ -290,12 +295,13 @@ class GroundPhases:
         ``since_wall``), or the samples: for SETTLED_S the reference more than 5 cm under the
         vehicle, and the ground carrying it (the vertical disturbance estimate holding up
         :data:`CARRIED_SHARE` of g: the thrust is down and the vehicle does not fall) or it
-        hardly moving vertically while the reference goes on :data:`GAP_GROWTH` further down,
-        itself and against the vehicle.  The second holds when the estimate's velocity does
-        not: PX4 SIH's read a 0.25-0.5 m/s descent while the vehicle sat on the ground, and its
-        own land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound."""
+        hardly moving vertically (by its velocity estimate or its position estimate's motion
+        over :data:`STILL_WINDOW_S`) while the reference goes on :data:`GAP_GROWTH` further
+        down, itself and against the vehicle.  The estimates fail each in turn: PX4 SIH's
+        velocity read a 0.25-0.5 m/s descent while the vehicle sat on the ground, and its own
+        land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound."""
         below = ref_z > s.pos[2] + 0.05
-        still = abs(s.vel[2]) < SETTLED_SPEED
+        still = abs(s.vel[2]) < SETTLED_SPEED or self._height_still(s)
         carried = float(self.ctrl.z[2, 2]) < -CARRIED_SHARE * GRAVITY
         if below and (still or carried):
             if self._settled_since is None:
@@ -317,6 +323,14 @@ class GroundPhases:
             if went_on >= GAP_GROWTH and grew >= GAP_GROWTH:
                 return "settled"
         return None
+
+    def _height_still(self, s):
+        """Whether the height estimate moved under SETTLED_SPEED over the last STILL_WINDOW_S
+        of the descent history (False before it holds that much)."""
+        for t, z in reversed(self._descent):
+            if t <= s.t - STILL_WINDOW_S:
+                return abs(float(s.pos[2]) - z) < SETTLED_SPEED * (s.t - t)
+        return False
 
     def _touched_down(self, s, thrust, how):
         """Touchdown seen on sample ``s`` (``how``: :meth:`_ground_contact`'s answer): judge its

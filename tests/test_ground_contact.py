@@ -7,6 +7,7 @@ was cut there and SIH's true state shows the fall: 0.5 m, 2.36 m/s into the grou
 summary said a 0.35 m/s touchdown.  The speed alone now says "on the ground" only when the
 reference goes on down without the vehicle."""
 
+import collections
 import types
 from pathlib import Path
 
@@ -38,9 +39,12 @@ def _judge_rows(rows, carried=False):
     flight = types.SimpleNamespace(
         ctrl=types.SimpleNamespace(z=np.array([[0, 0, 0], [0, 0, 0],
                                                [0, 0, -0.7 * g if carried else -0.4]])),
-        landed_state=None, landed_state_wall=None, _settled_since=None, _settled_at=None)
+        landed_state=None, landed_state_wall=None, _settled_since=None, _settled_at=None,
+        _descent=collections.deque())
+    flight._height_still = lambda s: GroundPhases._height_still(flight, s)
     for t, rz, z, vz in rows:
         s = types.SimpleNamespace(t=t, pos=np.array([0.0, 0.0, z]), vel=np.array([0.0, 0.0, vz]))
+        flight._descent.append((t, z))  # as _descent_history keeps it, before the judgement
         how = GroundPhases._ground_contact(flight, s, rz, 0.0)
         if how is not None:
             return t, how
@@ -112,3 +116,23 @@ def test_a_vehicle_rising_back_from_the_pausing_reference_is_no_touchdown():
     z = z - np.where(ref > -0.3, 0.03 * (t - t[np.argmax(ref > -0.3)]), 0.0)  # rising 3 cm/s
     seen = _judge(z, np.gradient(z, H), ref)
     assert seen is not None and seen[1] == "settled"
+
+
+def test_on_the_ground_with_the_velocity_estimate_reading_a_descent_is_contact():
+    """The samples flown (tests/data/px4_sih_touchdown_speed_bias.txt: PX4 SIH, `hover
+    --controller ladrc`, the descent after the land segment): on the ground from 2.5 s by SIH's
+    truth, the velocity estimate read a 0.2-0.35 m/s descent to the flight's end while the
+    position estimate slowed to 0.01-0.03 m/s; the thrust, not at its floor, left the ground
+    0.3 g to carry.  Nothing was seen in the 8 s bound and PX4's land mode landed it.  Judged
+    on the position estimate's motion too, the contact is seen there, after the truth's."""
+    rows = np.loadtxt(DATA / "px4_sih_touchdown_speed_bias.txt")
+    late = rows[rows[:, 0] > 6.0]
+    assert late[:, 3].min() > 0.1  # the velocity estimate never said still (the case flown)
+    assert np.ptp(late[-50:, 2]) < 0.05  # while the position estimate hardly moved
+    seen = _judge_rows(rows)
+    assert seen is not None and seen[1] == "settled"
+    assert 2.5 < seen[0] < rows[-1, 0] - 1.0, seen
+    # judged on the velocity estimate alone (the rule before), not seen in the flight's bound
+    flat = rows.copy()
+    flat[:, 2] = flat[:, 0] * 0.25 + flat[0, 2]  # the position estimate moving as it says
+    assert _judge_rows(flat) is None
