@@ -60,7 +60,7 @@ from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
-from .record import LIMIT_CYCLE_BAND_HZ, Recorder, attitude_oscillation, finite
+from .record import Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
@@ -818,16 +818,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _margin_outcome(self, warnings, osc):
         """The margin warning (a limit cycle predicted from the delay margin, in ``warnings``)
-        with what the flight measured, where that was no limit cycle: on ArduCopter SITL the
-        shipped missions kept 44 % of the lag, under the 75 % warned at, and swung +-0.3-0.6
-        deg; a warning left saying "likely" would say more than was measured."""
+        with what the flight measured, where it swung no more than
+        :data:`OSCILLATION_WARN_DEG`: on ArduCopter SITL the shipped missions kept 44 % of the
+        lag, under the 75 % warned at, and swung +-0.3-0.6 deg; a warning left saying "likely"
+        would say more than was measured.  (A larger swing has its own warning beside it.)"""
         said = self._warned_text.get("margin")
         if said is None or osc is None or said not in warnings or osc["limit_cycle"] is None:
             return
-        if osc["limit_cycle"] and osc["amplitude_deg"] > OSCILLATION_WARN_DEG:
+        if osc["amplitude_deg"] > OSCILLATION_WARN_DEG:
             return
-        seen = swing_text(osc) + (": not the limit cycle predicted" if not osc["limit_cycle"]
-                                  else f": under the {OSCILLATION_WARN_DEG:g} deg warned at")
+        seen = f"{swing_text(osc)}: none past the {OSCILLATION_WARN_DEG:g} deg warned at"
         warnings[warnings.index(said)] = f"{said}; measured: {seen}"
         self.say(f"the delay margin's warning against what was flown: {seen}")
 
@@ -1640,23 +1640,26 @@ def swing_text(osc):
     kind = {True: "regular (a limit cycle)", False: "irregular",
             None: "too short a record to tell its kind"}[osc["limit_cycle"]]
     share = "" if osc["concentration"] is None else \
-        f", {osc['concentration']:.0%} of it within {LIMIT_CYCLE_BAND_HZ:g} Hz of its peak"
+        f", {osc['concentration']:.0%} of its power at one tone and its harmonics"
     return f"+-{osc['amplitude_deg']:.1f} deg{where}, {kind}{share}"
 
 
 def swing_warning(osc):
-    """The warning a flight's roll/pitch swing earns (None under :data:`OSCILLATION_WARN_DEG`).
-    Its kind is said as measured: a regular swing is a limit cycle, the controller too fast for
-    the vehicle's attitude response; an irregular one is the loop's resonance driven by noise
-    or wind (PX4 SIH's swing on `x500_gusts`, driven by its position estimate's noise: README),
-    and slowing the controller trades it for a slower error.  Either way the flight is no good
+    """The warning a flight's roll/pitch swing earns (None under :data:`OSCILLATION_WARN_DEG`),
+    its kind said as measured.  A regular swing (one tone and its harmonics) is a limit cycle:
+    the controller too fast for the vehicle's attitude response.  An irregular one is no steady
+    tone: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
+    by its position estimate's noise: README) swings so, and so does an instability broken up
+    by lost or late samples and the tilt limit (on the fast path, 20-59 deg swings under 40 ms
+    of jitter or latency or a lossy radio read 0.52-0.77).  Either way the flight is no good
     one, whatever its error says."""
     if osc is None or osc["amplitude_deg"] <= OSCILLATION_WARN_DEG:
         return None
     if osc["limit_cycle"] is False:
-        return (f"roll/pitch swung {swing_text(osc)}: not a limit cycle but the loop's "
-                "resonance, driven by noise in the position estimate or by the wind; a swing "
-                "this large is no good flight, whatever the error says")
+        return (f"roll/pitch swung {swing_text(osc)}: no steady limit cycle (a loop's "
+                "resonance driven by noise in the position estimate or by the wind swings so, "
+                "and so does an instability broken up by lost or late samples and the tilt "
+                "limit); a swing this large is no good flight, whatever the error says")
     return (f"roll/pitch swung {swing_text(osc)}: a limit cycle, whatever the error says (the "
             "controller is too fast for this vehicle's attitude response)")
 

@@ -167,7 +167,7 @@ def error_figures(t, ref, pos, settle_s=0.0):
 
 
 #: a swing is a limit cycle when at least this share of its power (0.2-10 Hz) lies within
-#: :data:`LIMIT_CYCLE_BAND_HZ` of its strongest frequency.  Measured on the real autopilots'
+#: :data:`LIMIT_CYCLE_BAND_HZ` of its strongest frequency or that frequency's harmonics.  Measured on the real autopilots'
 #: SITLs: the limit cycles of fast gains with no input model (ArduCopter and PX4 SIH, +-28 deg
 #: at 0.9-1.0 Hz) put 0.99-1.00 there; PX4 SIH's swing on `x500_gusts` (5-6 deg at 1.0-1.2 Hz,
 #: the loop answering its position estimate's noise: README) 0.32-0.58, its safe hover 0.51-0.55
@@ -175,6 +175,9 @@ LIMIT_CYCLE_SHARE = 0.8
 #: half-width (Hz) of the band around the peak a limit cycle's power lies in (at least 2.5
 #: frequency bins of the record: the main lobe of a tone under the Hann window)
 LIMIT_CYCLE_BAND_HZ = 0.15
+#: the harmonics counted with it (a clipped tone's 3rd and 5th hold most of the rest; more,
+#: at a low peak, would cover so much of the band that noise filled them)
+LIMIT_CYCLE_HARMONICS = 5
 #: a shorter record (s) cannot tell a tone from a narrow band: the verdict is then None
 LIMIT_CYCLE_MIN_S = 10.0
 
@@ -185,7 +188,8 @@ def attitude_oscillation(t, roll, pitch, window_s=1.0):
     less than 3 s of attitude.  A limit cycle shows here however good the position error looks.
 
     And what kind of swing it is: ``concentration``, the share of that axis's swing power
-    (0.2-10 Hz) within :data:`LIMIT_CYCLE_BAND_HZ` of its peak, and ``limit_cycle``, whether
+    (0.2-10 Hz) within :data:`LIMIT_CYCLE_BAND_HZ` of its peak frequency and that frequency's
+    harmonics, and ``limit_cycle``, whether
     that share is at least :data:`LIMIT_CYCLE_SHARE` (None on a record shorter than
     :data:`LIMIT_CYCLE_MIN_S`).  A limit cycle is one tone, sustained; a loop's resonance
     driven by noise or wind spreads over its band and comes and goes.
@@ -213,8 +217,12 @@ def attitude_oscillation(t, roll, pitch, window_s=1.0):
     f_peak = float(freq[band][np.argmax(power[band])])
     half = max(LIMIT_CYCLE_BAND_HZ, 2.5 * float(freq[1]))
     total = float(power[band].sum())
-    share = float(power[band & (np.abs(freq - f_peak) <= half)].sum()) / total if total > 0 \
-        else None
+    # a limit cycle is periodic, not a sine: one that meets the tilt limit is clipped, and its
+    # harmonics carry the rest of its power (a square wave's fundamental holds 81 %)
+    near = np.zeros(freq.size, dtype=bool)
+    for k in range(1, min(LIMIT_CYCLE_HARMONICS, int(10.0 // f_peak)) + 1):
+        near |= np.abs(freq - k * f_peak) <= half
+    share = float(power[band & near].sum()) / total if total > 0 else None
     long_enough = resid.size * dt >= LIMIT_CYCLE_MIN_S
     verdict = bool(share >= LIMIT_CYCLE_SHARE) if share is not None and long_enough else None
     return {"amplitude_deg": amp, "frequency_hz": f_peak, "concentration": share,
