@@ -178,8 +178,10 @@ LIMIT_CYCLE_BAND_HZ = 0.15
 #: the harmonics counted with it (a clipped tone's 3rd and 5th hold most of the rest; more,
 #: at a low peak, would cover so much of the band that noise filled them)
 LIMIT_CYCLE_HARMONICS = 5
-#: a shorter record (s) cannot tell a tone from a narrow band: the verdict is then None
-LIMIT_CYCLE_MIN_S = 10.0
+#: a shorter record (s) cannot tell a tone from a narrow band: the verdict is then None.  The
+#: safe defaults' swing in PX4 SIH's 12-14 s hover flights (+-1.6-2.2 deg) read 0.67-0.98 there,
+#: its frequency bins 0.07-0.1 Hz wide
+LIMIT_CYCLE_MIN_S = 20.0
 
 
 def attitude_oscillation(t, roll, pitch, window_s=1.0):
