@@ -361,7 +361,7 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
     thrust the *scenario* demands is checked too: |a_ref - d - g e3| * hover / g against the
     thrust limit, whatever the controller did.  With the vehicle's roll and pitch, the
     roll/pitch oscillation over the tracking window (:func:`mavadrc.record.attitude_oscillation`:
-    ``after_settle.attitude_oscillation_deg``, ``_hz`` and ``_share``): a limit cycle shows
+    ``after_settle.attitude_oscillation_deg``, ``_hz`` and ``_regularity``): a limit cycle shows
     there whatever the position error says, and the joining manoeuvre does not."""
     t = np.asarray(t, dtype=float)
     out = error_figures(t, ref, pos)
@@ -371,9 +371,9 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
         osc = attitude_oscillation(t[keep], np.asarray(roll)[keep], np.asarray(pitch)[keep])
         out["after_settle"]["attitude_oscillation_deg"] = osc["amplitude_deg"] if osc else math.nan
         out["after_settle"]["attitude_oscillation_hz"] = osc["frequency_hz"] if osc else math.nan
-        # the share of the swing's power at one tone and its harmonics (a limit cycle: >= 0.8)
-        share = osc["concentration"] if osc else None
-        out["after_settle"]["attitude_oscillation_share"] = math.nan if share is None else share
+        # how alike the swing is to itself three periods later (a limit cycle: >= 0.6)
+        like = osc["regularity"] if osc else None
+        out["after_settle"]["attitude_oscillation_regularity"] = math.nan if like is None else like
     join = t < settle_s
     out["joining"] = error_figures(t[join], np.asarray(ref)[join], np.asarray(pos)[join])
     track = t >= settle_s

@@ -60,7 +60,7 @@ from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text
-from .record import Recorder, attitude_oscillation, finite
+from .record import REGULARITY_PERIODS, Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
@@ -1639,20 +1639,19 @@ def swing_text(osc):
     where = "" if osc["frequency_hz"] is None else f" at {osc['frequency_hz']:.2f} Hz"
     kind = {True: "regular (a limit cycle)", False: "irregular",
             None: "too short a record to tell its kind"}[osc["limit_cycle"]]
-    share = "" if osc["concentration"] is None else \
-        f", {osc['concentration']:.0%} of its power at one tone and its harmonics"
-    return f"+-{osc['amplitude_deg']:.1f} deg{where}, {kind}{share}"
+    like = "" if osc["regularity"] is None else \
+        f", {osc['regularity']:.2f} alike {REGULARITY_PERIODS} periods later"
+    return f"+-{osc['amplitude_deg']:.1f} deg{where}, {kind}{like}"
 
 
 def swing_warning(osc):
     """The warning a flight's roll/pitch swing earns (None under :data:`OSCILLATION_WARN_DEG`),
-    its kind said as measured.  A regular swing (one tone and its harmonics) is a limit cycle:
+    its kind said as measured.  A regular swing (alike period after period) is a limit cycle:
     the controller too fast for the vehicle's attitude response.  An irregular one is no steady
-    tone: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
-    by its position estimate's noise: README) swings so, and so does an instability broken up
-    by lost or late samples and the tilt limit (on the fast path, 20-59 deg swings under 40 ms
-    of jitter or latency or a lossy radio read 0.52-0.77).  Either way the flight is no good
-    one, whatever its error says."""
+    cycle: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
+    by its position estimate's noise: README) swings so, and so may an instability broken up by
+    lost or late samples and the tilt limit.  Either way the flight is no good one, whatever its
+    error says."""
     if osc is None or osc["amplitude_deg"] <= OSCILLATION_WARN_DEG:
         return None
     if osc["limit_cycle"] is False:

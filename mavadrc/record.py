@@ -166,22 +166,33 @@ def error_figures(t, ref, pos, settle_s=0.0):
     }
 
 
-#: a swing is a limit cycle when at least this share of its power (0.2-10 Hz) lies within
-#: :data:`LIMIT_CYCLE_BAND_HZ` of its strongest frequency or that frequency's harmonics.  Measured on the real autopilots'
-#: SITLs: the limit cycles of fast gains with no input model (ArduCopter and PX4 SIH, +-28 deg
-#: at 0.9-1.0 Hz) put 0.99-1.00 there; PX4 SIH's swing on `x500_gusts` (5-6 deg at 1.0-1.2 Hz,
-#: the loop answering its position estimate's noise: README) 0.32-0.58, its safe hover 0.51-0.55
-LIMIT_CYCLE_SHARE = 0.8
-#: half-width (Hz) of the band around the peak a limit cycle's power lies in (at least 2.5
-#: frequency bins of the record: the main lobe of a tone under the Hann window)
-LIMIT_CYCLE_BAND_HZ = 0.15
-#: the harmonics counted with it (a clipped tone's 3rd and 5th hold most of the rest; more,
-#: at a low peak, would cover so much of the band that noise filled them)
-LIMIT_CYCLE_HARMONICS = 5
-#: a shorter record (s) cannot tell a tone from a narrow band: the verdict is then None.  The
-#: safe defaults' swing in PX4 SIH's 12-14 s hover flights (+-1.6-2.2 deg) read 0.67-0.98 there,
-#: its frequency bins 0.07-0.1 Hz wide
+#: a swing is a limit cycle when it is this like itself :data:`REGULARITY_PERIODS` of its
+#: periods later (its autocorrelation there, 1 for a sustained periodic swing, clipped or not;
+#: exp(-2 pi zeta n) for a resonance of damping zeta driven by noise, 0.06 at zeta 0.15 over 3
+#: periods; 0.6 is zeta 0.027)
+LIMIT_CYCLE_REGULARITY = 0.6
+REGULARITY_PERIODS = 3
+#: a shorter record (s) is not called either way (None); the lag of REGULARITY_PERIODS periods
+#: must also fit in half the record
 LIMIT_CYCLE_MIN_S = 20.0
+
+
+def regularity(x, dt, f, periods=REGULARITY_PERIODS):
+    """How alike the swing ``x`` (sampled every ``dt`` s) is to itself ``periods`` of its
+    periods (1/``f`` s) later: its autocorrelation, unbiased for the overlap, at its best within
+    a tenth of a period of that lag.  None if the lag does not fit in half the record."""
+    x = np.asarray(x, dtype=float) - float(np.mean(x))
+    n = x.size
+    period = 1.0 / f / dt  # samples
+    lo = int(math.floor((periods - 0.1) * period))
+    hi = int(math.ceil((periods + 0.1) * period))
+    if lo < 1 or hi >= n // 2:
+        return None
+    spec = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(spec * np.conj(spec), 2 * n)[:n] / (n - np.arange(n))
+    if ac[0] <= 0.0:
+        return None
+    return float(np.max(ac[lo:hi + 1]) / ac[0])
 
 
 def attitude_oscillation(t, roll, pitch, window_s=1.0):
@@ -189,12 +200,11 @@ def attitude_oscillation(t, roll, pitch, window_s=1.0):
     (deg, the worse axis) and the strongest frequency of that axis (Hz, 0.2-10 Hz), or None with
     less than 3 s of attitude.  A limit cycle shows here however good the position error looks.
 
-    And what kind of swing it is: ``concentration``, the share of that axis's swing power
-    (0.2-10 Hz) within :data:`LIMIT_CYCLE_BAND_HZ` of its peak frequency and that frequency's
-    harmonics, and ``limit_cycle``, whether
-    that share is at least :data:`LIMIT_CYCLE_SHARE` (None on a record shorter than
-    :data:`LIMIT_CYCLE_MIN_S`).  A limit cycle is one tone, sustained; a loop's resonance
-    driven by noise or wind spreads over its band and comes and goes.
+    And what kind of swing it is: ``regularity`` (:func:`regularity` of that axis's swing at its
+    strongest frequency) and ``limit_cycle``, whether that is at least
+    :data:`LIMIT_CYCLE_REGULARITY` (None on a record shorter than :data:`LIMIT_CYCLE_MIN_S`).
+    A limit cycle repeats itself, period after period; a loop's resonance driven by noise or
+    wind swings as far but forgets itself within a few periods, and so does a manoeuvre.
     """
     t = np.asarray(t, dtype=float)
     if t.size < 10 or t[-1] - t[0] < 3.0:
@@ -210,24 +220,17 @@ def attitude_oscillation(t, roll, pitch, window_s=1.0):
         if best is None or amp > best[0]:
             best = (amp, resid)
     amp, resid = best
-    power = np.abs(np.fft.rfft(resid * np.hanning(resid.size))) ** 2
+    spectrum = np.abs(np.fft.rfft(resid * np.hanning(resid.size)))
     freq = np.fft.rfftfreq(resid.size, dt)
     band = (freq >= 0.2) & (freq <= 10.0)
     if not band.any():
-        return {"amplitude_deg": amp, "frequency_hz": None, "concentration": None,
+        return {"amplitude_deg": amp, "frequency_hz": None, "regularity": None,
                 "limit_cycle": None}
-    f_peak = float(freq[band][np.argmax(power[band])])
-    half = max(LIMIT_CYCLE_BAND_HZ, 2.5 * float(freq[1]))
-    total = float(power[band].sum())
-    # a limit cycle is periodic, not a sine: one that meets the tilt limit is clipped, and its
-    # harmonics carry the rest of its power (a square wave's fundamental holds 81 %)
-    near = np.zeros(freq.size, dtype=bool)
-    for k in range(1, min(LIMIT_CYCLE_HARMONICS, int(10.0 // f_peak)) + 1):
-        near |= np.abs(freq - k * f_peak) <= half
-    share = float(power[band & near].sum()) / total if total > 0 else None
+    f_peak = float(freq[band][np.argmax(spectrum[band])])
+    like = regularity(resid, dt, f_peak)
     long_enough = resid.size * dt >= LIMIT_CYCLE_MIN_S
-    verdict = bool(share >= LIMIT_CYCLE_SHARE) if share is not None and long_enough else None
-    return {"amplitude_deg": amp, "frequency_hz": f_peak, "concentration": share,
+    verdict = bool(like >= LIMIT_CYCLE_REGULARITY) if like is not None and long_enough else None
+    return {"amplitude_deg": amp, "frequency_hz": f_peak, "regularity": like,
             "limit_cycle": verdict}
 
 

@@ -16,7 +16,7 @@ TABLE_METRICS = (
     ("RMS 3-D", "after_settle.rms_error_m"),
     ("max 3-D", "after_settle.max_error_m"),
     ("roll/pitch osc. deg", "after_settle.attitude_oscillation_deg"),
-    ("osc. one tone", "after_settle.attitude_oscillation_share"),
+    ("osc. regularity", "after_settle.attitude_oscillation_regularity"),
     ("joining max", "joining.max_error_m"),
     ("effort", "effort_rms_accel"),
     ("thrust sat. s", "thrust_saturated_s"),
@@ -356,10 +356,9 @@ def write_report(folder, exp, records, meta, logs, workers=1):
           "mean ± std over seeds; `joining max` is the largest error before it. `roll/pitch osc. "
           "deg` is the 99th percentile of the vehicle's roll or pitch about its 1 s running "
           "mean over the same window (the worse axis; in process only): a limit cycle shows "
-          "there whatever the error says; `osc. one tone` the share of that swing's power at "
-          "its strongest frequency and its harmonics (a limit cycle: 0.8 or more; a resonance "
-          "driven by noise or wind, or an instability broken up by lost or late samples, "
-          "less). `effort` is the "
+          "there whatever the error says; `osc. regularity` how alike that swing is to itself "
+          "three of its periods later (its autocorrelation: a limit cycle 0.6 or more, 1 "
+          "when sustained; a resonance driven by noise or wind less). `effort` is the "
           "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
           "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
           "command. A run is **infeasible** when the scenario demands more thrust than the "
