@@ -195,7 +195,8 @@ def regularity(x, dt, f, periods=REGULARITY_PERIODS):
         return None
     total = weight = 0.0
     for start in range(0, x.size - width + 1, max(1, width // 2)):
-        seg = x[start:start + width] - float(np.mean(x[start:start + width]))
+        seg = x[start:start + width]
+        seg = seg - float(np.mean(seg))
         spec = np.fft.rfft(seg, 2 * width)
         ac = np.fft.irfft(spec * np.conj(spec), 2 * width)[:width] / (width - np.arange(width))
         if ac[0] > 0.0:
