@@ -1650,8 +1650,8 @@ def swing_warning(osc):
     the controller too fast for the vehicle's attitude response.  An irregular one is no steady
     cycle: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
     by its position estimate's noise: README) swings so, and so does an instability broken up
-    by lost or late samples and the tilt limit (fast path: 20-59 deg read 0.17-0.59).  Either way the flight is no good one, whatever its
-    error says."""
+    by lost or late samples and the tilt limit (fast path: 20-59 deg read 0.17-0.59).  Either
+    way the flight is no good one, whatever its error says."""
     if osc is None or osc["amplitude_deg"] <= OSCILLATION_WARN_DEG:
         return None
     if osc["limit_cycle"] is False:

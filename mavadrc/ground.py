@@ -36,7 +36,7 @@ LIFTOFF_CLIMB = 0.2
 SETTLED_SPEED = 0.1
 SETTLED_S = 0.3
 #: the speed is the velocity estimate's, or the position estimate's over this window (s): on
-#: PX4 SIH the velocity estimate once read a 0.2-0.25 m/s descent for 6 s while the vehicle sat
+#: PX4 SIH the velocity estimate once read a 0.2-0.35 m/s descent for 6 s while the vehicle sat
 #: on the ground and its position estimate moved 0.01-0.03 m/s; touchdown went unseen, the flight
 #: ended on its bound and PX4's land mode landed it
 STILL_WINDOW_S = 0.5

@@ -193,12 +193,13 @@ def regularity(x, dt, f, periods=REGULARITY_PERIODS):
     hi = int(math.ceil((periods + 0.1) * period))
     if lo < 1 or hi >= width // 2 or width > x.size:
         return None
+    overlap = width - np.arange(width)  # the pairs each lag has: the estimate unbiased by it
     total = weight = 0.0
     for start in range(0, x.size - width + 1, max(1, width // 2)):
         seg = x[start:start + width]
         seg = seg - float(np.mean(seg))
         spec = np.fft.rfft(seg, 2 * width)
-        ac = np.fft.irfft(spec * np.conj(spec), 2 * width)[:width] / (width - np.arange(width))
+        ac = np.fft.irfft(spec * np.conj(spec), 2 * width)[:width] / overlap
         if ac[0] > 0.0:
             total += float(np.max(ac[lo:hi + 1]))  # = power x the window's regularity
             weight += float(ac[0])

@@ -132,7 +132,7 @@ def test_on_the_ground_with_the_velocity_estimate_reading_a_descent_is_contact()
     seen = _judge_rows(rows)
     assert seen is not None and seen[1] == "settled"
     assert 2.5 < seen[0] < rows[-1, 0] - 1.0, seen
-    # judged on the velocity estimate alone (the rule before), not seen in the flight's bound
+    # a position estimate descending as its velocity says (a vehicle still sinking): no contact
     flat = rows.copy()
-    flat[:, 2] = flat[:, 0] * 0.25 + flat[0, 2]  # the position estimate moving as it says
+    flat[:, 2] = flat[:, 0] * 0.25 + flat[0, 2]
     assert _judge_rows(flat) is None

@@ -65,7 +65,7 @@ def test_a_fast_observer_limit_cycles_there_as_on_the_real_one_and_the_record_sa
                   progress=False, stream=out)
     osc = fast["attitude_oscillation"]
     assert osc["amplitude_deg"] > 15.0 and 0.5 < osc["frequency_hz"] < 1.5, osc
-    assert osc["limit_cycle"] is True, osc  # one tone, as on the real ones (0.99-1.00 there)
+    assert osc["limit_cycle"] is True, osc  # regular, as on the real ones (0.64-0.99 there)
     assert any("a limit cycle, whatever the error says" in w for w in fast["warnings"])
     assert "a limit cycle, whatever the error says" in out.getvalue()
     pd, _ = fly(load_mission(path), kind="pd", out=tmp_path, lockstep=True, figures=False,

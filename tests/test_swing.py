@@ -39,7 +39,7 @@ def test_a_sustained_tone_is_a_limit_cycle():
     assert osc["regularity"] > 0.95
     assert osc["amplitude_deg"] == pytest.approx(27.0, rel=0.1)
     assert osc["frequency_hz"] == pytest.approx(0.98, abs=0.05)
-    # small, and under white noise of a third of its size, still one tone (on the other axis)
+    # small, and under white noise of a third of its size, still regular (on the other axis)
     small = attitude_oscillation(T, np.zeros(T.size), tone(1.5, 0.9, noise_deg=0.5, seed=1))
     assert small["limit_cycle"] is True and small["frequency_hz"] == pytest.approx(0.9, abs=0.05)
 
