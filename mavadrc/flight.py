@@ -1651,9 +1651,13 @@ def swing_warning(osc):
     cycle: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
     by its position estimate's noise: README) swings so, and so does an instability broken up
     by lost or late samples and the tilt limit (fast path: 20-59 deg read 0.17-0.59).  Either
-    way the flight is no good one, whatever its error says."""
+    way the flight is no good one, whatever its error says.  On a record too short to tell the
+    kind (``limit_cycle`` None), no kind is named."""
     if osc is None or osc["amplitude_deg"] <= OSCILLATION_WARN_DEG:
         return None
+    if osc["limit_cycle"] is None:
+        return (f"roll/pitch swung {swing_text(osc)}: a limit cycle or a resonance, the record "
+                "cannot say; a swing this large is no good flight, whatever the error says")
     if osc["limit_cycle"] is False:
         return (f"roll/pitch swung {swing_text(osc)}: no steady limit cycle (a loop's "
                 "resonance driven by noise in the position estimate or by the wind swings so, "

@@ -83,6 +83,11 @@ def test_a_short_record_does_not_tell():
                                np.zeros(short.size))
     assert osc["amplitude_deg"] > 15 and osc["limit_cycle"] is None
     assert "too short a record to tell" in swing_text(osc)
+    # and its warning names no kind (a PX4 SIH spiral's summary, cut short by the ground, said
+    # "too short a record to tell its kind: a limit cycle, whatever the error says")
+    text = swing_warning(osc)
+    assert "the record cannot say" in text and "no good flight" in text
+    assert "a limit cycle, whatever" not in text and "no steady limit cycle" not in text
 
 
 def test_the_warning_names_the_kind_of_swing():
