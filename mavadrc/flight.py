@@ -59,7 +59,7 @@ from .control.position import (IN_BUF, IN_HEAD, IN_L1, IN_ND, IN_NLAG, IN_STATE,
 from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
-from .margin import delay_margin, margin_record, margin_text
+from .margin import delay_margin, margin_record, margin_text, prediction_text
 from .record import REGULARITY_PERIODS, Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
@@ -173,7 +173,7 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     if kind in ("ladrc", "adrc"):
         # the vehicle's response and the samples' age, not gains: they hold for any observer
         # flown on it
-        for key in ("input_lag", "latency", "drag", "drag_learn"):
+        for key in ("input_lag", "latency", "drag", "drag_learn", "predict"):
             if key in spec.gains:
                 given.setdefault(key, spec.gains[key])
         if given.get("input_lag") == "auto":
@@ -195,14 +195,15 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     if gains.get("input_lag") == "auto" and identified is not None and designed_for is not None \
             and kind in ("ladrc", "adrc") and ("wc" in given or "wo" in given):
         gains, _ = scale_to_vehicle(spec, kind, gains, tuple(float(x) for x in identified),
-                                    tuple(float(x) for x in designed_for))
+                                    tuple(float(x) for x in designed_for), dead_time)
     shaped = gains.get("input_lag") == "auto" and identified is not None and \
         dead_time is not None
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
             and "wc" not in given and "wo" not in given:
         # the fast defaults were chosen for the bundled vehicles (63 % in 0.125 s); on a slower
         # vehicle they are slowed until the loop keeps its margin
-        gains = fit_to_margin(spec, kind, gains, tuple(float(x) for x in identified))
+        gains = fit_to_margin(spec, kind, gains, tuple(float(x) for x in identified),
+                              dead_time)
     if gains.get("input_lag") == "auto":
         if identified is None:
             raise FlightError("input_lag: auto is measured on the vehicle flown: in flight (the "
@@ -262,7 +263,20 @@ SCALE_TOLERANCE = 1.15
 MISSION_MARGIN_SHARE = 0.35
 
 
-def scale_to_vehicle(spec, kind, gains, lag, design):
+def _judged(gains, lag, dead_time):
+    """``gains`` with the input model ``lag`` (s per axis) that the rules below judge them on:
+    the single lag they were calibrated on, or for a law that predicts (``predict``) the shape
+    identified (``dead_time`` s per axis, None: not known; :data:`mavadrc.identify.ORDER` lags),
+    which it flies: its prediction, exact for the one lag, leaves a dead time and two lags less
+    margin (PX4 SIH, the spiral's wc 4: 90 ms on the one lag, 50 on the shape)."""
+    out = {**gains, "input_lag": tuple(lag)}
+    if gains.get("predict") and dead_time is not None:
+        out["input_dead_time"] = tuple(min(float(d), float(x)) for d, x in zip(dead_time, lag))
+        out["input_lags"] = ORDER
+    return out
+
+
+def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None):
     """The mission's ``wc`` and ``wo`` (chosen for a vehicle whose lags are ``design``, s per
     axis) for one whose lags are ``lag``.  Where the horizontal lag exceeds the design's by more
     than :data:`SCALE_TOLERANCE`, the gains must keep, as a share of the lag, the delay margin
@@ -281,26 +295,27 @@ def scale_to_vehicle(spec, kind, gains, lag, design):
                                        for i, w in enumerate(gains[key]))
                             for key in ("wc", "wo")}}
 
-    def margin(f, plant):
-        g = {**scaled(f), "input_lag": tuple(plant)}
+    def margin(f, plant, dead=None):
+        g = _judged(scaled(f), plant, dead)
         return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
 
     need = min(margin(1.0, design) / quick, MISSION_MARGIN_SHARE) * slow
-    if margin(1.0, lag) >= need:
+    if margin(1.0, lag, dead_time) >= need:
         return gains, 1.0
     lo, hi = 0.05, 1.0
     while hi - lo > 0.02:
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if margin(mid, lag) >= need else (lo, mid)
+        lo, hi = (mid, hi) if margin(mid, lag, dead_time) >= need else (lo, mid)
     f = round(lo, 3)
     return scaled(f), f
 
 
-def fit_to_margin(spec, kind, gains, lag):
+def fit_to_margin(spec, kind, gains, lag, dead_time=None):
     """``gains`` (with ``wc`` and ``wo``) as they are if the controller's delay margin on the
     plant ``lag`` (s per axis, the observers' input model) is at least :data:`MARGIN_SHARE` of
     the horizontal lag; else both bandwidths scaled down by one factor until it is (bisection,
-    to 2 %).  Returns the gains flown, with ``input_lag`` set to ``lag``."""
+    to 2 %).  Returns the gains flown, with ``input_lag`` set to ``lag``.  A law that predicts
+    is judged on the shape identified (``dead_time``; :func:`_judged`)."""
     base = {**gains, "input_lag": tuple(lag)}
     need = MARGIN_SHARE * max(lag[0], lag[1])
 
@@ -309,7 +324,8 @@ def fit_to_margin(spec, kind, gains, lag):
                 "wo": tuple(round(f * float(w), 3) for w in gains["wo"])}
 
     def holds(f):
-        c = make_controller(spec, hover_thrust=0.5, kind=kind, gains=scaled(f))
+        c = make_controller(spec, hover_thrust=0.5, kind=kind,
+                            gains=_judged(scaled(f), lag, dead_time))
         return delay_margin(c) >= need
 
     if holds(1.0):
@@ -805,8 +821,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         fitted = rec.get("delay_margin_s")
         fitted = ("" if fitted is None else
                   f"; {1e3 * fitted:.0f} ms on the response identified (its lags and dead time)")
-        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{drag}{bw} from "
-                 f"here; {margin_text(self.delay_margin)}{fitted}")
+        self.say(f"flying {self.kind} with the observers' input lag ({lag}) s{drag}{bw}"
+                 f"{prediction_text(self.ctrl)} from here; "
+                 f"{margin_text(self.delay_margin)}{fitted}")
         slow = max(gains["input_lag"][0], gains["input_lag"][1])
         rule = rec.get("delay_margin_one_lag_s", self.delay_margin)
         if rule is not None and rule < MARGIN_SHARE * slow:
@@ -902,7 +919,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.say(f"input model fitted again with the drag learnt "
                  f"({', '.join(f'{x:.2f}' for x in drag[:2])} /s): {new_lag[0]:.3f} s "
                  f"horizontally for the doublets' {old_lag[0]:.3f}; flying it"
-                 f"{_bandwidths(gains)} from here; {margin_text(margin)}"
+                 f"{_bandwidths(gains)}{prediction_text(self.ctrl)} from here; "
+                 f"{margin_text(margin)}"
                  + ("" if rec_margin is None else
                     f"; {1e3 * rec_margin:.0f} ms on the response identified"))
 
@@ -1191,12 +1209,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 acc[i] = a.acc[i] + drag[i] * (a.vel[i] - rc.vel[i])
         return Reference(rc.pos, rc.vel, acc, rc.yaw, rc.yaw_rate)
 
-    def _control_step(self, s, r, hold=False, tilt_cap=None):
+    def _control_step(self, s, r, hold=False, tilt_cap=None, aref=None):
         """One control step on sample ``s`` towards reference ``r`` (for the time the
         controller's estimate is carried to, :meth:`_lead`; ``hold``: stay where the
         reference was when the hold began); sends the setpoint, returns (q, thrust).
         ``tilt_cap`` (rad; landing): the tilt limit for this step, lowered further as the
-        thrust falls towards its floor (:func:`landing_tilt`)."""
+        thrust falls towards its floor (:func:`landing_tilt`).  ``aref``: the reference's own
+        acceleration then, where ``r.acc`` is the one fed forward (None: ``r.acc``)."""
         told = None
         if tilt_cap is not None:
             told = self.ctrl.tilt_limit
@@ -1204,7 +1223,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                                                 self.ctrl.hover_thrust_estimate,
                                                 self.m.controller.thrust_min)
         try:
-            q, thrust = self._control_update(s, r, hold)
+            q, thrust = self._control_update(s, r, hold, aref)
         finally:
             if told is not None:
                 self.ctrl.tilt_limit = told
@@ -1212,7 +1231,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._send(s.t, q, thrust * self.seq.thrust_factor(self))
         return q, thrust
 
-    def _control_update(self, s, r, hold):
+    def _control_update(self, s, r, hold, aref=None):
         if hold:
             if self._hold_point is None:
                 self._hold_point = s.pos.copy()
@@ -1223,7 +1242,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
                                          dt=s.dt, age=s.age)
         else:
             q, thrust = self.ctrl.update(s.pos, s.vel, r.pos, r.vel, r.acc, r.yaw, dt=s.dt,
-                                         age=s.age)
+                                         age=s.age, ref_acc_now=aref)
         return q, thrust
 
     def _ph_mission(self, s):
@@ -1244,6 +1263,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             r = self._reference(t)
         lead = self._lead(s)
         rc = r if lead == 0.0 else self._reference(t + lead)
+        aref = np.array(rc.acc, dtype=float)  # the reference's own, for a law that predicts
         rc = self._feedforward(rc, t + lead)
         if self._yaw_offset != 0.0:
             step = YAW_RATE * (s.dt if s.dt is not None else self.h)
@@ -1252,10 +1272,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
         if self._waiting:
             rc = self._waiting_reference(s, rc)
+            aref[2] = 0.0
         final = self._in_final_land(t)
         cap = math.radians(self.m.controller.tilt_max_deg) if final else None
         self._pause_learning(t, final)
-        q, thrust = self._control_step(s, rc, tilt_cap=cap)
+        q, thrust = self._control_step(s, rc, tilt_cap=cap, aref=aref)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
             self._refine_step(s, t)

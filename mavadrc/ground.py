@@ -17,7 +17,7 @@ from .control.geometry import GRAVITY
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
 from .identify import HANDOVER_S, leg_speed_of, windows_in
-from .margin import margin_text
+from .margin import margin_text, prediction_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
 
@@ -260,7 +260,8 @@ class GroundPhases:
         self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
         self.gate.restart(self.h)
         self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
-                 f"({self.traj.duration:.1f} s); {margin_text(self.delay_margin)}")
+                 f"({self.traj.duration:.1f} s){prediction_text(self.ctrl)}; "
+                 f"{margin_text(self.delay_margin)}")
         self._enter("mission", s)
 
     def _ph_touchdown(self, s):

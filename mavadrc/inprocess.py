@@ -176,7 +176,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     ``t0``; the interval since the last sample it got; its age, ``k - s`` periods, as the
     controller's ``latency`` says: NaN not compensated, < 0 the age measured, else that many
     seconds), the
-    reference of ``crefs`` row by row (N, 10: pos, vel, acc, yaw; for the sample's time, or
+    reference of ``crefs`` row by row (N, 13: pos, vel, the acceleration fed forward, yaw,
+    the reference's own acceleration; for the sample's time, or
     with the age compensated for now; ``refs``: for the sample's time, the one logged and
     scored), and makes a setpoint (float32,
     into ``spq``/``spt`` at ``k``); the vehicle applies setpoint ``applied[k]`` if one arrives
@@ -214,6 +215,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 rpos[i] = crefs[j, i]
                 rvel[i] = crefs[j, 3 + i]
                 racc[i] = crefs[j, 6 + i]
+                Sc[i, K.S_AREF] = crefs[j, 10 + i]  # the reference's own (a law that predicts)
             phys.disturbance_accel_into(x, omega, pv, v_wind, f_ext, tau_ext, dist, xdot)
             if oracle:
                 for i in range(3):
@@ -491,11 +493,13 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         now = times[:rows_max] + ((at[:rows_max] - got[:rows_max]) * h if latency < 0.0
                                   else latency)
         cref = _references(traj, now, h)
+    # then the reference's own acceleration (a law that predicts compares its estimate's with
+    # it), where columns 6-8 become the acceleration fed forward
+    cref = np.column_stack([cref, cref[:, 6:9]])
     lead = ctrl.feedforward_lead
     if np.any(lead > 0.0):
         # the acceleration fed forward: the reference's where the command will act (as the
         # flight's Flight._feedforward computes it), sampled once per distinct lead
-        cref = cref.copy()
         base = times[:rows_max] if latency != latency else now
         drag = ctrl.drag
         ahead = {}

@@ -61,9 +61,10 @@ class _Loop:
     ``known``: None, or the samples of it the controller compensates (its delay line).
     :meth:`step` takes a disturbance acceleration ``d`` added to the plant's (held over the
     step); with ``feedforward`` the controller is also given -d as its reference acceleration
-    (the oracle's law: the true disturbance fed forward)."""
+    (the oracle's law: the true disturbance fed forward); with ``noise`` d is instead an error
+    of the position the controller reads (its estimate's noise), the plant undisturbed."""
 
-    def __init__(self, ctrl, tau, n, known=None, feedforward=False, order=1):
+    def __init__(self, ctrl, tau, n, known=None, feedforward=False, order=1, noise=False):
         self.p = ctrl._P[0].copy()
         self.h = float(self.p[K.P_H])
         # the observers' input model, as position_update runs it: a dead time of ``md`` steps
@@ -82,6 +83,7 @@ class _Loop:
         self.line = 0 if known is None else 3 + known + 1
         self.size = self.ns + self.nm + self.nx + n + self.line
         self.feedforward = feedforward
+        self.noise = noise
         h = self.h
         self.Bd = np.zeros(self.nx)  # a held disturbance acceleration
         self.Bd[:2] = 0.5 * h * h, h
@@ -117,6 +119,8 @@ class _Loop:
         buf = z[ns + nm + nx:ns + nm + nx + n]
         line = z[ns + nm + nx + n:]
         y, ydot = x[0], x[1]
+        if self.noise:
+            y, d = y + d, 0.0
         u, s, line = self._channel(s, line, y, ydot, -d if self.feedforward else 0.0)
         # the observers' input model, as position_update runs it
         xin = u
@@ -148,9 +152,10 @@ class _Loop:
         z0[:self.ns] = s
         J = np.empty((self.size, self.size))
         for j in range(self.size):
-            if j == K.S_TDR:
+            if j == K.S_TDR or j == K.S_AREF:
                 # the TD's time off its grid: 0 at the nominal step, where the loop runs; a
-                # difference across 0 would step the TD once or not at all
+                # difference across 0 would step the TD once or not at all.  The reference's
+                # acceleration (a law that predicts reads it) is an input, 0 at rest
                 J[:, j] = 0.0
                 J[j, j] = 1.0
                 continue
@@ -239,6 +244,26 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     return math.inf
 
 
+def noise_response(ctrl, omegas, tau=None, delay=0.0, order=1):
+    """|S(j w)|: the position error the controller sees (the reference less the position it
+    reads) per m of sinusoidal noise in that position at each angular frequency of ``omegas``
+    (rad/s); the true position moves by |S - 1| of it.  The loop as :func:`disturbance_response`
+    has it.  Above 1 the loop amplifies its estimate's noise at that frequency: a position
+    estimate's wander there (a GNSS fix's noise through the autopilot's filter) becomes a
+    larger error, and a swing of the vehicle.  NaN where the loop is unstable."""
+    tau, delay, order = _own(ctrl, tau, delay, order)
+    loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))), order=order,
+                 noise=True)
+    J, b, c = loop.linearised()
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
+    if max(abs(np.linalg.eigvals(J))) >= 1.0:
+        return np.full(omegas.shape, math.nan)
+    eye = np.eye(J.shape[0])
+    # the position read is the plant's plus the noise: the error seen is -(that)
+    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * loop.h) * eye - J, b) + 1.0)
+                     for w in omegas])
+
+
 def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False, order=1):
     """|G_d(j w)|: the position error (m) per m/s^2 of a sinusoidal disturbance acceleration at
     each angular frequency of ``omegas`` (rad/s), the loop linearised at rest on the plant (lag
@@ -271,6 +296,14 @@ def margin_text(margin):
         return ("no delay margin: unstable on the plant it assumes, expect a limit cycle")
     return (f"delay margin {1e3 * margin:.0f} ms (a vehicle slower than its input model by more "
             f"will make it oscillate)")
+
+
+def prediction_text(ctrl):
+    """", the law predicting L s ahead" for a console line ("" for a law that does not)."""
+    horizon = ctrl.prediction
+    if not horizon.any():
+        return ""
+    return f", the law predicting {horizon[0]:.3f} s ahead"
 
 
 _SPEC_MARGINS = {}

@@ -68,7 +68,8 @@ S_VPREV = 11  # PID: previous rate (for the D term)
 S_DF = 12  # PID: low-pass filtered derivative of the measured rate (the D term's input)
 S_RPREV = 13  # TD: the reference of the last step (interpolated over long intervals)
 S_TDR = 14  # TD: the time (s, < the nominal step) from its last grid step to the last update
-NS = 15
+S_AREF = 15  # the reference's own acceleration now, set by the caller for a law that predicts
+NS = 16
 
 # --- the delay line (observers that know the sample's age; see channel_update_aged) -------------
 # A channel row of NSD entries: its state (NS), then the delayed estimate and the inputs applied.
@@ -122,7 +123,8 @@ P_DALPHA = 31  # PID: low-pass factor per step of the D term (1 - exp(-2 pi fc h
 P_ILIM = 32  # PID: integrator authority limit i_limit (acceleration units)
 P_WO = 33  # LESO bandwidth wo (rad/s): the ZOH observer's Lc(h) for steps other than P_H
 P_FC = 34  # PID: D-term low-pass cutoff (Hz; 0: unfiltered), for steps other than P_H
-NP = 35
+P_PRED = 35  # LADRC / ADRC without TD: the law acts on the estimate predicted this far (s; 0: now)
+NP = 36
 
 #: An interval within this fraction of the nominal step is the nominal step.
 H_SNAP = 1e-6
@@ -526,6 +528,18 @@ def _channel_step(s, p, y, ydot, r, rdot, rddot, h):
 
 
 @jit_inline
+def _predicted_error(s, p, e1, e2):
+    """The errors (e1, e2) carried ``P_PRED`` ahead: to where the vehicle and the reference
+    will be when the command computed now acts, at the accelerations of now (the reference's in
+    S_AREF; the estimate's, the observer's z3 plus the input model's output in S_U).  Tracking
+    exactly, both stay 0; so the lag of the vehicle's response leaves the feedback as far as
+    the input model is right."""
+    L = p[P_PRED]
+    de = s[S_AREF] - (s[S_Z3] + p[P_B0] * s[S_U])
+    return e1 + L * (e2 + 0.5 * L * de), e2 + L * de
+
+
+@jit_inline
 def _law(s, p, y, ydot, r, rdot, rddot, h):
     """The control law of a channel on its estimates (the observer has run): u0, u = the limited
     command, kept in S_U0 and S_U."""
@@ -536,10 +550,14 @@ def _law(s, p, y, ydot, r, rdot, rddot, h):
             # the Euler LESO's estimate is one nominal step ahead of the sample: so is the
             # reference it is compared with (as Han's NLESO below)
             hn = p[P_H]
-            u0 = (p[P_KP] * (r + hn * rdot + 0.5 * hn * hn * rddot - s[S_Z1])
-                  + p[P_KD] * (rdot + hn * rddot - s[S_Z2]) + rddot)
+            e1 = r + hn * rdot + 0.5 * hn * hn * rddot - s[S_Z1]
+            e2 = rdot + hn * rddot - s[S_Z2]
         else:
-            u0 = p[P_KP] * (r - s[S_Z1]) + p[P_KD] * (rdot - s[S_Z2]) + rddot
+            e1 = r - s[S_Z1]
+            e2 = rdot - s[S_Z2]
+        if p[P_PRED] > 0.0:
+            e1, e2 = _predicted_error(s, p, e1, e2)
+        u0 = p[P_KP] * e1 + p[P_KD] * e2 + rddot
         u = (u0 - s[S_Z3]) / b0
     elif kind == KIND_HAN:
         if p[P_TD] != 0.0:
@@ -557,6 +575,8 @@ def _law(s, p, y, ydot, r, rdot, rddot, h):
         hn = p[P_H]
         e1 = v1 + hn * v2 + 0.5 * hn * hn * acc - s[S_Z1]
         e2 = v2 + hn * acc - s[S_Z2]
+        if p[P_PRED] > 0.0:
+            e1, e2 = _predicted_error(s, p, e1, e2)
         if p[P_LAW] == LAW_FHAN:
             u0 = -fhan(e1, p[P_C] * e2, p[P_R], p[P_H1]) + acc
         else:
@@ -771,6 +791,8 @@ def channel_update_aged(s, p, y, ydot, r, rdot, rddot, h, age):
     if now > t1:
         _inputs_over(s, p, t1, now, True)
     s[DL_NOW] = now
+    if s[DL_N] > 0.0:  # the input applied now (a law that predicts reads its acceleration)
+        s[S_U] = s[DL_INPUTS + int(s[DL_HEAD])]
     u = _law(s, p, y, ydot, r, rdot, rddot, hl)
     _push_input(s, now, u)
     return u

@@ -50,7 +50,9 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     (P[:, P_H] is nominal).  ``age``: how long before now the sample was taken (s): the
     observers of rows with delay lines correct at the sample's time and the law acts on their
     estimate for now, the reference being now's (:func:`kernels.channel_update_aged`); NaN:
-    the sample is taken as now's (the age is not compensated).
+    the sample is taken as now's (the age is not compensated).  A law that predicts (``P_PRED`` > 0)
+    reads the reference's own acceleration now in its state's ``S_AREF`` (the caller sets it:
+    ``racc`` is the acceleration fed forward).
 
     The input model is the first-order lag ``u_obs += alpha (u_applied - u_obs)``, alpha = 1 -
     exp(-h/tau), exact for a command held over the interval.  Each step advances it by the
@@ -316,11 +318,18 @@ class PositionController:
     of that time constant.  With ``input_dead_time`` (s per axis) and ``input_lags`` (1 or 2)
     it is shaped as identified in flight: the dead time (whole steps) and then that many equal
     lags sharing the rest of the 63 % time.  ``drag`` (1/s per axis): the linear drag modelled.
+
+    ``predict`` (with an input model): the law acts on the observers' estimate carried the input
+    model's mean delay ahead (:attr:`prediction`), where the vehicle will be when the command
+    it computes takes effect, and the caller gives the reference for that time.  The
+    estimate is carried at the acceleration the observers read now (their z3 and the input
+    model's output), so the lag of the vehicle's response leaves the loop's feedback as far as
+    the model is right: the loop keeps more of its delay margin at the same bandwidths.
     """
 
     def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
                  tilt_max=math.radians(35.0), thrust_min=0.05, thrust_max=1.0, g=G.GRAVITY,
-                 latency=None, thrust_estimate_tau=None, **gains):
+                 latency=None, thrust_estimate_tau=None, predict=False, **gains):
         self.kind = kind
         self.latency = check_latency(latency, kind)
         self._IN = np.zeros((3, NIN))
@@ -374,6 +383,17 @@ class PositionController:
                 # the law tracks the TD's profile and feeds forward its fh, not the reference's
                 # motion: the drag along the reference is not fed forward, so not modelled
                 self._IN[:, IN_DRAG] = 0.0
+        if predict:
+            if kind not in ("ladrc", "adrc"):
+                raise ValueError("predict carries the observers' estimate over the input model: "
+                                 f"the 'ladrc' and 'adrc' kinds, not {kind!r}")
+            if lag is None:
+                raise ValueError("predict carries the estimate over the input model's delay: "
+                                 "give input_lag too")
+            if kind == "adrc" and self._P[0, K.P_TD] != 0.0:
+                raise ValueError("predict is not for the classical ADRC with its TD (the TD "
+                                 "shapes the reference the law tracks): give td: false")
+            self._P[:, K.P_PRED] = self._IN[:, IN_LEAD]
         self._h = float(self._P[0, K.P_H])
         self._S = np.zeros((3, K.NSD))
         self._out = np.zeros(G.NO + 3)
@@ -419,7 +439,7 @@ class PositionController:
         return self.latency
 
     def update(self, pos, vel=None, ref_pos=None, ref_vel=None, ref_acc=None, yaw=0.0, dt=None,
-               age=None):
+               age=None, ref_acc_now=None):
         """One step: returns (q [w, x, y, z], normalized thrust).
 
         ``pos``/``vel``: measured NED position and velocity (``vel`` may be None for ADRC kinds;
@@ -427,7 +447,9 @@ class PositionController:
         ``dt``: the interval (s) since the sample of the last step, from the vehicle's
         timestamps (None: the nominal step ``h``); it must be a finite number > 0.  ``age``: how
         long before now the sample was taken, as measured (s; None: unknown), used as
-        ``latency`` says (:meth:`sample_age`).
+        ``latency`` says (:meth:`sample_age`).  ``ref_acc_now``: where ``ref_acc`` is the
+        acceleration fed forward (led, with the drag's), the reference's own acceleration, which
+        a law that predicts (:attr:`prediction`) compares with its estimate's (None: ``ref_acc``).
         """
         pos = np.asarray(pos, dtype=np.float64)
         vel = self._nan3 if vel is None else np.asarray(vel, dtype=np.float64)
@@ -435,6 +457,10 @@ class PositionController:
         rv = self._zero3 if ref_vel is None else np.asarray(ref_vel, dtype=np.float64)
         ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
         h = self._h if dt is None else float(dt)
+        an = ra if ref_acc_now is None else np.asarray(ref_acc_now, dtype=np.float64)
+        if not np.all(np.isfinite(an)):
+            raise nonfinite_arrays(ref_acc_now=an)
+        self._S[:, K.S_AREF] = an
         if not position_update(self._S, self._P, self._M, self._IN, pos, vel, rp, rv, ra,
                                float(yaw), self._out, h, self.sample_age(age)):
             if not (h > 0.0 and math.isfinite(h)):
@@ -553,6 +579,14 @@ class PositionController:
         if self.kind == "adrc" and self._P[0, K.P_TD] != 0.0:
             lead[:] = 0.0
         return lead
+
+    @property
+    def prediction(self):
+        """(3,) s per axis: how far ahead of now the law carries the observers' estimate
+        (``predict``: the input model's mean delay, as :attr:`feedforward_lead`), at the
+        acceleration they read now; 0: the law acts on the estimate for now.  The caller gives
+        the reference for that time (:meth:`update`)."""
+        return self._P[:, K.P_PRED].copy()
 
     @property
     def drag(self):
