@@ -224,8 +224,11 @@ def test_the_shaped_model_damps_the_swing_the_one_lag_model_left_on_px4_sih():
     ("{type: ladrc, input_lag: 0.2, input_dead_time: 0.3}", "input_dead_time"),  # past the lag
     ("{type: ladrc, input_lag: 0.2, input_dead_time: -0.01}", "input_dead_time"),
     ("{type: ladrc, input_lag: 0.2, input_lags: 3}", "input_lags"),
+    ("{type: pd, predict: true}", "predict"),                              # no observer
+    ("{type: ladrc, predict: true}", "predict"),                           # no input model
+    ("{type: ladrc, input_lag: auto, predict: 1}", "predict"),             # not a boolean
 ])
-def test_a_bad_input_model_shape_names_the_file_line_and_field(controller, field, tmp_path):
+def test_a_bad_input_model_names_the_file_line_and_field(controller, field, tmp_path):
     from mavadrc.mission import load_mission
     from sim.yamlio import ConfigError
     path = tmp_path / "bad.yaml"

@@ -138,22 +138,6 @@ def test_a_controller_that_cannot_predict_is_refused(gains, message):
         PositionController(kind, h=0.01, hover_thrust=0.5, predict=True, **kw)
 
 
-@pytest.mark.parametrize("controller, text", [
-    ("{type: pd, predict: true}", "ladrc and adrc only"),
-    ("{type: ladrc, predict: true}", "give input_lag too"),
-    ("{type: ladrc, input_lag: auto, predict: 1}", "predict"),
-])
-def test_a_bad_predict_names_the_file_line_and_field(controller, text, tmp_path):
-    from mavadrc.mission import load_mission
-    from sim.yamlio import ConfigError
-    path = tmp_path / "bad.yaml"
-    path.write_text(f"name: bad\nvehicle: x500\ncontroller: {controller}\n"
-                    "trajectory:\n  - takeoff: {altitude: 1}\n  - land: {}\n")
-    with pytest.raises(ConfigError) as e:
-        load_mission(path)
-    assert "predict" in str(e.value) and text in str(e.value) and "bad.yaml:3" in str(e.value)
-
-
 FIGURE = """name: figure eight on PX4 SIH's response
 vehicle: px4_sih_quad
 controller:
