@@ -165,9 +165,10 @@ wind: calm
 def test_a_flight_that_predicts_tracks_as_closely_and_says_so(kind, tmp_path):
     """Flown against the bundled PX4 SIH quad (told its response): predicting, LADRC tracks
     the figure eight within 8 mm after settling, closer than without; ADRC within 3 cm, a
-    little wider than without; the record says what was flown.  The reference's own acceleration reaches the law: given the acceleration fed
-    forward (led 0.25 s, with the drag's) in its place, the law chases a reference that is
-    not the vehicle's and falls 5-9 cm off."""
+    little wider than without; the record and the console say what was flown.  The
+    reference's own acceleration reaches the law: given the acceleration fed forward (led
+    0.25 s, with the drag's) in its place, the law chases an acceleration that is not the
+    reference's and falls 15-17 cm off."""
     from mavadrc.fly import fly
     from mavadrc.mission import load_mission
     got = {}

@@ -30,6 +30,10 @@ Otherwise (see :func:`leso_step`, :func:`nleso_step`, :func:`td_step`, :func:`pi
   carried to the next update (:func:`_td_interval`).
 * PD / PID: differences, integral and the D low-pass with the real h.
 
+A law that predicts (``P_PRED`` > 0; LADRC, and ADRC without its TD) acts on its errors carried
+that far ahead at the accelerations of now, the reference's (``S_AREF``, set by the caller) and
+the estimate's (z3 plus the input model's output in ``S_U``): :func:`_predicted_error`.
+
 A sample that is older than the step using it (a link's latency) goes through
 :func:`channel_update_aged`: the observer corrects at the sample's time and the law acts on its
 estimate carried to now, from a delay line kept after the state (rows of ``NSD`` entries).
@@ -123,7 +127,7 @@ P_DALPHA = 31  # PID: low-pass factor per step of the D term (1 - exp(-2 pi fc h
 P_ILIM = 32  # PID: integrator authority limit i_limit (acceleration units)
 P_WO = 33  # LESO bandwidth wo (rad/s): the ZOH observer's Lc(h) for steps other than P_H
 P_FC = 34  # PID: D-term low-pass cutoff (Hz; 0: unfiltered), for steps other than P_H
-P_PRED = 35  # LADRC / ADRC without TD: the law acts on the estimate predicted this far (s; 0: now)
+P_PRED = 35  # LADRC / ADRC without TD: the law acts on its errors carried this far (s; 0: now's)
 NP = 36
 
 #: An interval within this fraction of the nominal step is the nominal step.

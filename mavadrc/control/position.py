@@ -50,9 +50,9 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     (P[:, P_H] is nominal).  ``age``: how long before now the sample was taken (s): the
     observers of rows with delay lines correct at the sample's time and the law acts on their
     estimate for now, the reference being now's (:func:`kernels.channel_update_aged`); NaN:
-    the sample is taken as now's (the age is not compensated).  A law that predicts (``P_PRED`` > 0)
-    reads the reference's own acceleration now in its state's ``S_AREF`` (the caller sets it:
-    ``racc`` is the acceleration fed forward).
+    the sample is taken as now's (the age is not compensated).  A law that predicts
+    (``P_PRED`` > 0) reads the reference's own acceleration now in its state's ``S_AREF`` (the
+    caller sets it: ``racc`` is the acceleration fed forward).
 
     The input model is the first-order lag ``u_obs += alpha (u_applied - u_obs)``, alpha = 1 -
     exp(-h/tau), exact for a command held over the interval.  Each step advances it by the
@@ -319,12 +319,12 @@ class PositionController:
     it is shaped as identified in flight: the dead time (whole steps) and then that many equal
     lags sharing the rest of the 63 % time.  ``drag`` (1/s per axis): the linear drag modelled.
 
-    ``predict`` (with an input model): the law acts on the observers' estimate carried the input
-    model's mean delay ahead (:attr:`prediction`), where the vehicle will be when the command
-    it computes takes effect, and the caller gives the reference for that time.  The
-    estimate is carried at the acceleration the observers read now (their z3 and the input
-    model's output), so the lag of the vehicle's response leaves the loop's feedback as far as
-    the model is right: the loop keeps more of its delay margin at the same bandwidths.
+    ``predict`` (with an input model): the law acts on its errors carried the input model's
+    mean delay ahead (:attr:`prediction`), where they will be when the command it computes
+    takes effect: at the reference's own acceleration now (:meth:`update`'s ``ref_acc_now``)
+    and the one the observers read (their z3 and the input model's output).  The lag of the
+    vehicle's response leaves the loop's feedback as far as the model is right: the loop keeps
+    more of its delay margin at the same bandwidths.
     """
 
     def __init__(self, kind="ladrc", *, h, hover_thrust=None, mass=None, max_thrust=None,
@@ -582,10 +582,9 @@ class PositionController:
 
     @property
     def prediction(self):
-        """(3,) s per axis: how far ahead of now the law carries the observers' estimate
-        (``predict``: the input model's mean delay, as :attr:`feedforward_lead`), at the
-        acceleration they read now; 0: the law acts on the estimate for now.  The caller gives
-        the reference for that time (:meth:`update`)."""
+        """(3,) s per axis: how far ahead of now the law carries its errors (``predict``: the
+        input model's mean delay, as :attr:`feedforward_lead`), at the accelerations of now;
+        0: the law acts on the errors of now."""
         return self._P[:, K.P_PRED].copy()
 
     @property
