@@ -233,3 +233,13 @@ def test_predicting_trades_which_wrong_model_the_loop_survives(scenario, holds):
     assert got[holds]["max_error_m"] < 0.15, got
     assert got[fails]["max_error_m"] > 0.5, got
     assert got[fails]["attitude_oscillation_regularity"] > 0.6, got  # a limit cycle
+
+
+def test_a_non_finite_reference_acceleration_is_refused_and_names_itself():
+    c = _sih(True)
+    c.update([0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, -1.0])
+    z = c.z.copy()
+    with pytest.raises(ValueError, match="ref_acc_now"):
+        c.update([0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, -1.0],
+                 ref_acc_now=[math.nan, 0.0, 0.0])
+    assert np.array_equal(c.z, z)  # the observers untouched

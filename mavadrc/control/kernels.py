@@ -795,7 +795,7 @@ def channel_update_aged(s, p, y, ydot, r, rdot, rddot, h, age):
     if now > t1:
         _inputs_over(s, p, t1, now, True)
     s[DL_NOW] = now
-    if s[DL_N] > 0.0:  # the input applied now (a law that predicts reads its acceleration)
+    if p[P_PRED] > 0.0 and s[DL_N] > 0.0:  # a law that predicts reads the input applied now
         s[S_U] = s[DL_INPUTS + int(s[DL_HEAD])]
     u = _law(s, p, y, ydot, r, rdot, rddot, hl)
     _push_input(s, now, u)

@@ -63,7 +63,7 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
     """
     for i in range(3):
         if not (math.isfinite(pos[i]) and math.isfinite(rpos[i]) and math.isfinite(rvel[i])
-                and math.isfinite(racc[i])):
+                and math.isfinite(racc[i]) and math.isfinite(S[i, K.S_AREF])):
             return False
     if not math.isfinite(yaw):
         return False
@@ -457,16 +457,14 @@ class PositionController:
         rv = self._zero3 if ref_vel is None else np.asarray(ref_vel, dtype=np.float64)
         ra = self._zero3 if ref_acc is None else np.asarray(ref_acc, dtype=np.float64)
         h = self._h if dt is None else float(dt)
-        an = ra if ref_acc_now is None else np.asarray(ref_acc_now, dtype=np.float64)
-        if not np.all(np.isfinite(an)):
-            raise nonfinite_arrays(ref_acc_now=an)
-        self._S[:, K.S_AREF] = an
+        self._S[:, K.S_AREF] = ra if ref_acc_now is None else ref_acc_now
         if not position_update(self._S, self._P, self._M, self._IN, pos, vel, rp, rv, ra,
                                float(yaw), self._out, h, self.sample_age(age)):
             if not (h > 0.0 and math.isfinite(h)):
                 raise ValueError(f"dt must be a finite interval > 0 s (got {dt!r}); state left "
                                  "unchanged")
-            raise nonfinite_arrays(pos=pos, ref_pos=rp, ref_vel=rv, ref_acc=ra, yaw=yaw)
+            raise nonfinite_arrays(pos=pos, ref_pos=rp, ref_vel=rv, ref_acc=ra, yaw=yaw,
+                                   ref_acc_now=self._S[:, K.S_AREF])
         return self._out[G.O_Q:G.O_Q + 4].copy(), float(self._out[G.O_THRUST])
 
     @property
