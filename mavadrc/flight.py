@@ -376,22 +376,10 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
         gains["u_max"] = tuple(accel_max)
     thrust = {"hover_thrust": hover_thrust} if hover_thrust is not None else \
         {"mass": mass, "max_thrust": max_thrust}
-    return PositionController(kind, h=1.0 / (rate_hz or spec.rate_hz), tilt_max=math.radians(spec.tilt_max_deg),
+    return PositionController(kind, h=1.0 / (rate_hz or spec.rate_hz),
+                              tilt_max=math.radians(spec.tilt_max_deg),
                               thrust_min=spec.thrust_min, thrust_max=spec.thrust_max, **thrust,
                               **gains)
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 class Held:
