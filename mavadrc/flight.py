@@ -1251,7 +1251,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             r = self._reference(t)
         lead = self._lead(s)
         rc = r if lead == 0.0 else self._reference(t + lead)
-        aref = np.array(rc.acc, dtype=float)  # the reference's own, for a law that predicts
+        aref = rc.acc  # the reference's own, for a law that predicts
         rc = self._feedforward(rc, t + lead)
         if self._yaw_offset != 0.0:
             step = YAW_RATE * (s.dt if s.dt is not None else self.h)
@@ -1260,7 +1260,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             rc = Reference(rc.pos, rc.vel, rc.acc, rc.yaw + self._yaw_offset, rc.yaw_rate)
         if self._waiting:
             rc = self._waiting_reference(s, rc)
-            aref[2] = 0.0
+            aref = (aref[0], aref[1], 0.0)
         final = self._in_final_land(t)
         cap = math.radians(self.m.controller.tilt_max_deg) if final else None
         self._pause_learning(t, final)

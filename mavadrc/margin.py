@@ -244,6 +244,22 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     return math.inf
 
 
+def _response(ctrl, omegas, tau, delay, order, offset=0.0, **loop):
+    """|c (z I - J)^-1 b + offset| at z = exp(j w h) for each of ``omegas``: the frequency
+    response of the loop linearised at rest on the plant (:func:`_own`), ``loop``: the
+    :class:`_Loop`'s input (``feedforward``, ``noise``).  NaN where the loop is unstable (it
+    has no steady response)."""
+    tau, delay, order = _own(ctrl, tau, delay, order)
+    lp = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))), order=order, **loop)
+    J, b, c = lp.linearised()
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
+    if max(abs(np.linalg.eigvals(J))) >= 1.0:
+        return np.full(omegas.shape, math.nan)
+    eye = np.eye(J.shape[0])
+    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * lp.h) * eye - J, b) + offset)
+                     for w in omegas])
+
+
 def noise_response(ctrl, omegas, tau=None, delay=0.0, order=1):
     """|S(j w)|: the position error the controller sees (the reference less the position it
     reads) per m of sinusoidal noise in that position at each angular frequency of ``omegas``
@@ -251,17 +267,8 @@ def noise_response(ctrl, omegas, tau=None, delay=0.0, order=1):
     has it.  Above 1 the loop amplifies its estimate's noise at that frequency: a position
     estimate's wander there (a GNSS fix's noise through the autopilot's filter) becomes a
     larger error, and a swing of the vehicle.  NaN where the loop is unstable."""
-    tau, delay, order = _own(ctrl, tau, delay, order)
-    loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))), order=order,
-                 noise=True)
-    J, b, c = loop.linearised()
-    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
-    if max(abs(np.linalg.eigvals(J))) >= 1.0:
-        return np.full(omegas.shape, math.nan)
-    eye = np.eye(J.shape[0])
     # the position read is the plant's plus the noise: the error seen is -(that)
-    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * loop.h) * eye - J, b) + 1.0)
-                     for w in omegas])
+    return _response(ctrl, omegas, tau, delay, order, offset=1.0, noise=True)
 
 
 def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False, order=1):
@@ -271,16 +278,7 @@ def disturbance_response(ctrl, omegas, tau=None, delay=0.0, feedforward=False, o
     at its step;
     ``feedforward``: the disturbance also fed forward (the oracle).  NaN where the loop is
     unstable (it has no steady response)."""
-    tau, delay, order = _own(ctrl, tau, delay, order)
-    loop = _Loop(ctrl, tau, int(round(delay / float(ctrl._P[0, K.P_H]))),
-                 feedforward=feedforward, order=order)
-    J, b, c = loop.linearised()
-    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
-    if max(abs(np.linalg.eigvals(J))) >= 1.0:
-        return np.full(omegas.shape, math.nan)
-    eye = np.eye(J.shape[0])
-    return np.array([abs(c @ np.linalg.solve(np.exp(1j * w * loop.h) * eye - J, b))
-                     for w in omegas])
+    return _response(ctrl, omegas, tau, delay, order, feedforward=feedforward)
 
 
 def margin_record(margin):
