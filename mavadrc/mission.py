@@ -407,12 +407,13 @@ def _read_controller(sec, kinds=None):
             sec.check("input_lags", n in (1, 2), f"must be 1 or 2 (got {n!r})")
             c.gains["input_lags"] = int(n)
     if sec.has("predict"):
-        # the law acts on the estimate carried over the input model's delay (PositionController)
+        # the law acts on its errors carried over the input model's delay (PositionController)
         c.gains["predict"] = sec.boolean("predict")
         sec.check("predict", not c.gains["predict"] or c.kind in ("ladrc", "adrc"),
-                  "the observers' estimate is carried over the input model: ladrc and adrc only")
+                  "the law's errors are carried on the observers' estimate: ladrc and adrc only")
         sec.check("predict", not c.gains["predict"] or "input_lag" in c.gains,
-                  "carries the estimate over the input model's delay: give input_lag too")
+                  "the law's errors are carried over the input model's delay: give input_lag "
+                  "too")
     if sec.has("drag"):
         # the vehicle's linear drag (1/s per axis) in the observers' model: auto (identified
         # with input_lag: auto, the default then), numbers, or 0 (none)

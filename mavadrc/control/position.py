@@ -385,10 +385,10 @@ class PositionController:
                 self._IN[:, IN_DRAG] = 0.0
         if predict:
             if kind not in ("ladrc", "adrc"):
-                raise ValueError("predict carries the observers' estimate over the input model: "
+                raise ValueError("predict carries the law's errors on the observers' estimate: "
                                  f"the 'ladrc' and 'adrc' kinds, not {kind!r}")
             if lag is None:
-                raise ValueError("predict carries the estimate over the input model's delay: "
+                raise ValueError("predict carries the law's errors over the input model's delay: "
                                  "give input_lag too")
             if kind == "adrc" and self._P[0, K.P_TD] != 0.0:
                 raise ValueError("predict is not for the classical ADRC with its TD (the TD "
