@@ -2,10 +2,90 @@
 
 A terminal gets one progress line rewritten in place; a pipe or a file gets a line every 5 s, so
 a log of a flight stays readable.
+
+The console is never a reason to drop a vehicle: a companion flies with its output on a terminal
+that can hang up (an SSH session lost), in a pipe whose reader can quit (``| head``) or on a full
+disk.  A write that fails (:class:`Guarded`) silences the console for the rest of the run, the
+failed text and everything after it goes to the ``fallback`` (the flight's companion.log), and
+the flight goes on as if nothing had happened.
 """
 
+import os
+import signal
 import sys
+import threading
 import time
+
+
+class Guarded:
+    """A text stream whose writes never raise: the first that fails (an ``OSError``: a broken
+    pipe, a terminal hung up, a full disk) makes it quiet for good.  Its file descriptor, if it
+    has one, is pointed at the null device then, so what Python flushes at exit does not fail
+    either.  ``lost``: None, or what went wrong; ``fallback(text)`` receives what could not be
+    written and all text written after."""
+
+    def __init__(self, out, fallback=None):
+        self.out = out
+        self.fallback = fallback
+        self.lost = None
+        self._pending = []  # written since the last flush that went through
+
+    def write(self, text):
+        if self.lost is None:
+            try:
+                self.out.write(text)
+                self._pending.append(text)
+                return
+            except OSError as exc:
+                self._lose(exc)
+        self._fall(text)
+
+    def flush(self):
+        if self.lost is None:
+            try:
+                self.out.flush()
+                self._pending.clear()
+            except OSError as exc:
+                self._lose(exc)
+
+    def isatty(self):
+        try:
+            return self.lost is None and self.out.isatty()
+        except (AttributeError, OSError, ValueError):
+            return False
+
+    def _lose(self, exc):
+        self.lost = f"{type(exc).__name__}: {exc}"
+        pending, self._pending = "".join(self._pending), []
+        self._fall(pending)  # written, but never out of the buffer
+        try:
+            fd = self.out.fileno()
+        except (AttributeError, OSError, ValueError):
+            return
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(null, fd)
+            finally:
+                os.close(null)
+        except OSError:
+            pass
+
+    def _fall(self, text):
+        if self.fallback is not None and text.strip():
+            try:
+                self.fallback(text)
+            except OSError:
+                pass
+
+
+def guarded(out, fallback=None):
+    """``out`` as a :class:`Guarded` stream (itself if it already is one; ``fallback`` set)."""
+    if isinstance(out, Guarded):
+        if fallback is not None:
+            out.fallback = fallback
+        return out
+    return Guarded(out, fallback)
 
 
 def counted(n, noun):
@@ -14,17 +94,23 @@ def counted(n, noun):
 
 
 class Console:
-    """Writes to ``out``; ``progress=False`` drops the live line (messages still go out)."""
+    """Writes to ``out`` (guarded: :class:`Guarded`; its text goes to ``fallback`` once ``out``
+    fails); ``progress=False`` drops the live line (messages still go out)."""
 
-    def __init__(self, out=sys.stdout, progress=True):
-        self.out = out
+    def __init__(self, out=sys.stdout, progress=True, fallback=None):
+        self.out = guarded(out, fallback)
         self.progress_on = progress
-        self._tty = out.isatty() if hasattr(out, "isatty") else False
+        self._tty = self.out.isatty()
         self._last_print = 0.0
         self._last_line = 0.0
 
+    @property
+    def lost(self):
+        """None while the console is written; else why it is not (the first failed write)."""
+        return self.out.lost
+
     def say(self, text):
-        if self.progress_on and self._tty:
+        if self.progress_on and self._tty and self.out.lost is None:
             self.out.write("\r\033[K")
         self.out.write(text + "\n")
         self.out.flush()
@@ -46,6 +132,8 @@ class Console:
         line = f"{segment:<18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m  [{bar}]"
         if link is not None:
             line += f"  {link()}"
+        if self.out.lost is not None:
+            return  # the live line is no record: not written to the fallback
         if self._tty:
             self.out.write("\r\033[K" + line)
             self.out.flush()
@@ -53,3 +141,56 @@ class Console:
             self._last_line = now
             self.out.write(line + "\n")
             self.out.flush()
+
+
+class Terminated(KeyboardInterrupt):
+    """A signal that asks the companion to stop (SIGTERM: ``kill``, a service manager, a
+    container stopping), taken as Ctrl-C is: in the air, hold, then land; a second one leaves
+    the vehicle to its autopilot.  ``signum``, ``signame``."""
+
+    def __init__(self, signum):
+        self.signum = int(signum)
+        self.signame = signal.Signals(self.signum).name
+        super().__init__(self.signame)
+
+
+def interrupt_reason(exc):
+    """What ended a flight interrupted by ``exc`` (a KeyboardInterrupt), as summary.json's
+    ``aborted`` says it."""
+    if isinstance(exc, Terminated):
+        return f"terminated by {exc.signame}"
+    return "interrupted by the user"
+
+
+class FlightSignals:
+    """The signals a flight answers, while installed (:meth:`install`, main thread only;
+    :meth:`restore` puts the old handlers back, and does nothing if none were installed):
+    SIGTERM raises :class:`Terminated` where Ctrl-C would raise KeyboardInterrupt, and SIGHUP
+    (the terminal gone) no longer ends the process: ``on_hangup()`` is called and the flight
+    goes on (the console then fails and goes quiet)."""
+
+    def __init__(self, on_hangup=None):
+        self.on_hangup = on_hangup
+        self._old = {}
+
+    def install(self):
+        if threading.current_thread() is not threading.main_thread():
+            return
+        wanted = [(signal.SIGTERM, self._term)]
+        if hasattr(signal, "SIGHUP"):
+            wanted.append((signal.SIGHUP, self._hup))
+        for sig, handler in wanted:
+            self._old[sig] = signal.signal(sig, handler)
+
+    def restore(self):
+        old, self._old = self._old, {}
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+    @staticmethod
+    def _term(signum, frame):
+        raise Terminated(signum)
+
+    def _hup(self, signum, frame):
+        if self.on_hangup is not None:
+            self.on_hangup()

@@ -99,7 +99,7 @@ class EmbeddedVehicle:
             if log_path is not None:
                 self.log = open(log_path, "w")
             self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT,
-                                         preexec_fn=_ignore_sigint if os.name == "posix" else None)
+                                         preexec_fn=_outlive_the_terminal if os.name == "posix" else None)
         else:
             raise ValueError(f"start must be auto, fork or spawn (got {start!r})")
         self.start = start
@@ -160,10 +160,15 @@ def can_fork():
     return sys.platform == "linux" and hasattr(os, "fork") and threading.active_count() == 1
 
 
-def _ignore_sigint():
-    # Ctrl-C in a terminal reaches the whole process group; the flight answers it (hold, land)
-    # and needs the vehicle alive to do so
+def _outlive_the_terminal():
+    # Ctrl-C in a terminal reaches the whole process group, and so does the hangup of a terminal
+    # that goes away; the flight answers both (hold and land; fly on) and needs the vehicle
+    # alive to do so.  SIGTERM is the vehicle's own to answer (the companion's handler, which a
+    # forked vehicle inherits, is not)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 class ForkedVehicle:
@@ -181,7 +186,7 @@ class ForkedVehicle:
             code = 1
             try:
                 gc.freeze()  # the inherited heap is not ours to collect (nor to copy, page by page)
-                _ignore_sigint()
+                _outlive_the_terminal()
                 fd = os.open(log_path if log_path is not None else os.devnull,
                              os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
                 os.dup2(fd, 1)

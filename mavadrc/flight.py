@@ -42,7 +42,7 @@ import traceback
 
 import numpy as np
 
-from .console import Console
+from .console import Console, Terminated, interrupt_reason
 from .control import PositionController
 from .control.geometry import GRAVITY
 from .control.rotations import level_quat
@@ -428,7 +428,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.sources = {}
         if self.hover is not None:
             self.sources["hover_thrust"] = hover_source or "the mission"
-        self.console = Console(out, progress)
+        self.console = Console(out, progress, fallback=record.note)
+        self.hung_up_at = None  # mission time of a SIGHUP (the terminal gone): flown on
         self.recorder = Recorder(record, self.kind)
         self.max_wall_s = max_wall_s
         self.heartbeat_timeout = heartbeat_timeout
@@ -552,6 +553,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def say(self, text):
         self.console.say(text)
 
+    def hung_up(self):
+        """SIGHUP: the terminal the companion was started from is gone (an SSH session lost).
+        The flight goes on; the console, if it was that terminal, fails and goes quiet."""
+        if self.hung_up_at is None:
+            self.hung_up_at = round(float(self.recorder.duration or 0.0), 3)
+            self.rec.note(f"SIGHUP at {self.hung_up_at:.1f} s (mission time): the terminal hung "
+                          "up; the flight goes on, what the console cannot say is written here")
+
     def on_text(self, severity, text):
         self.texts.append(text)
         self.console.vehicle(text)
@@ -590,8 +599,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._connect()
             self._setup()
             self._loop()
-        except KeyboardInterrupt:
-            self.supervisor.report("interrupted", "interrupted by the user")
+        except KeyboardInterrupt as exc:
+            self.supervisor.report("interrupted", interrupt_reason(exc))
             if self.link.armed:
                 self._loop()  # the flight goes on under the supervisor: hold, then land
         except (FlightError, LinkError) as exc:
@@ -922,14 +931,18 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 if msg is not None:
                     self._dispatch(msg)
                 self._tick(time.monotonic())
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as exc:
                 self._interrupts += 1
                 if self._interrupts > 1:
                     self._give_up("a second interrupt")
+                elif isinstance(exc, Terminated):
+                    self.say(f"terminated ({exc.signame}): hold, then land ({exc.signame} again "
+                             "to leave the vehicle to its autopilot)")
+                    self._escalate("interrupted", interrupt_reason(exc))
                 else:
                     self.say("interrupted: hold, then land (Ctrl-C again to leave the vehicle "
                              "to its autopilot)")
-                    self._escalate("interrupted", "interrupted by the user")
+                    self._escalate("interrupted", interrupt_reason(exc))
             except FlightError as exc:
                 self._refused(str(exc))
             except Exception as exc:  # an error of ours never leaves the vehicle unattended
@@ -1527,6 +1540,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "touchdown_soft": soft,
             "disarmed": bool(disarmed),
             "aborted": aborted,
+            # the console (stdout) failing or the terminal hanging up ends nothing: the flight
+            # went on, and what the console would have said is in companion.log
+            "console": {"lost": self.console.lost, "hung_up_at_s": self.hung_up_at},
             "last_known_state": self.last_known(),
             "samples": self.gate.received,
             "control_steps": self.steps,

@@ -11,15 +11,18 @@ nothing and leaves no record folder behind; one whose bundled vehicle died at st
 folder, with the vehicle's ``vehicle.log`` and a ``summary.json`` that says why.
 """
 
+import contextlib
 import dataclasses
 import datetime
 import math
 import shutil
+import signal
 import sys
 from pathlib import Path
 
 from sim.yamlio import ConfigError
 
+from .console import FlightSignals, Terminated, guarded
 from .flight import Flight, print_table
 from .link import FlightError, Link, LinkError, parse_url
 from .mission import load_mission
@@ -31,7 +34,12 @@ class UsageError(ValueError):
 
 
 class Interrupted(Exception):
-    """Ctrl-C before an autopilot was heard: nothing flew (exit 130)."""
+    """Ctrl-C (or SIGTERM) before an autopilot was heard: nothing flew (exit 130, or 128 plus
+    the signal's number: ``status``)."""
+
+    def __init__(self, text, status=None):
+        super().__init__(text)
+        self.status = EXIT_INTERRUPTED if status is None else status
 
 
 #: the exit status of a command the user interrupted (128 + SIGINT), as shells expect
@@ -102,7 +110,8 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
     Raises :class:`UsageError` before anything is sent when the mission or an option cannot be
     flown, and :class:`FlightError` / :class:`LinkError` when the flight could not start (the
     record, summary.json included, is written either way)."""
-    stream = stream if stream is not None else sys.stdout
+    # guarded: a console that fails (a closed pipe, a terminal hung up) never ends a flight
+    stream = guarded(stream if stream is not None else sys.stdout)
     kind = kind or mission.controller.kind
     hover, source = mission.hover_thrust, mission.hover_source
     check_options(connect=connect, lockstep=lockstep, seed=seed, wind=wind, timeout=timeout,
@@ -116,11 +125,15 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             stream.write(f"note: {n}\n")
     folder = record_folder(out or mission.out, mission, kind)
     rec = FlightRecord(folder, mission.text)
+    stream = guarded(stream, rec.note)  # what the console cannot say goes to companion.log
     vehicle = None
     link = None
     summary = None
     url = connect
+    flying = []  # the flight, once there is one (a SIGHUP is noted in its record)
+    signals = FlightSignals(on_hangup=lambda: flying and flying[0].hung_up())
     try:
+        signals.install()
         if connect is None:
             from .embedded import EmbeddedVehicle
             vehicle = EmbeddedVehicle(mission, lockstep=lockstep,
@@ -138,6 +151,7 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
                         hover_source=source, bundled=True if vehicle is not None else None,
                         watchdog=vehicle.check if vehicle is not None else None)
         flight.context = run_context(mission, kind, connect, lockstep)
+        flying.append(flight)
         if kind != mission.controller.kind:
             stream.write(f"note: --controller {kind}: the mission's {mission.controller.kind} "
                          f"gains do not apply; flying {kind}'s defaults (summary.json: "
@@ -147,11 +161,12 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
         finally:
             if flight.summary is not None:
                 write_effective(folder, mission, flight.summary, bundled=connect is None)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         summary = None  # before the flight could answer it: nothing was heard, nothing flew
-        raise Interrupted(f"interrupted{f' while waiting for {url}' if url else ''}: "
-                          "nothing flew") from None
+        raise Interrupted(f"{_interrupted_word(exc)}{f' while waiting for {url}' if url else ''}"
+                          ": nothing flew", _interrupt_status(exc)) from None
     finally:
+        signals.restore()
         heard = link is not None and link.heartbeat is not None
         died = vehicle is not None and vehicle.proc.poll() is not None
         if link is not None:
@@ -164,8 +179,8 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             # hide the records of real flights
             shutil.rmtree(folder, ignore_errors=True)
     if not heard and interrupted(summary):
-        raise Interrupted(f"interrupted while waiting for an autopilot's heartbeat on {url}: "
-                          "nothing flew, no record kept")
+        raise Interrupted(f"{interrupted(summary)} while waiting for an autopilot's heartbeat "
+                          f"on {url}: nothing flew, no record kept", interrupt_status(summary))
     if figures:
         draw_figures(folder, stream)
     return summary, folder
@@ -243,8 +258,33 @@ def write_effective(folder, mission, summary, bundled):
 
 
 def interrupted(summary):
-    """Whether the user's Ctrl-C ended the flight of ``summary``."""
-    return summary is not None and "interrupted by the user" in (summary.get("aborted") or [])
+    """How the flight of ``summary`` was interrupted ('interrupted': the user's Ctrl-C;
+    'terminated by SIGTERM'), or None if it was not."""
+    for why in (summary or {}).get("aborted") or []:
+        if why == "interrupted by the user":
+            return "interrupted"
+        if why.startswith("terminated by SIG"):
+            return why
+    return None
+
+
+def interrupt_status(summary):
+    """The exit status of a flight ``interrupted`` (130 for Ctrl-C, 128 plus the signal's
+    number for a signal, as shells report them); None if it was not."""
+    why = interrupted(summary)
+    if why is None:
+        return None
+    if why.startswith("terminated by "):
+        return 128 + int(getattr(signal, why.split()[-1]))
+    return EXIT_INTERRUPTED
+
+
+def _interrupted_word(exc):
+    return f"terminated by {exc.signame}" if isinstance(exc, Terminated) else "interrupted"
+
+
+def _interrupt_status(exc):
+    return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 def draw_figures(folder, stream):
@@ -262,11 +302,15 @@ def draw_figures(folder, stream):
 
 
 def main(args):
-    try:
-        return _main(args)
-    except KeyboardInterrupt:  # Ctrl-C before the flight could answer it: nothing flew
-        print("\nmavadrc fly: interrupted: nothing flew", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    # guarded: an output that fails (a closed pipe, a terminal hung up) never ends a flight nor
+    # turns its end into a traceback
+    out, err = guarded(sys.stdout), guarded(sys.stderr)
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            return _main(args)
+        except KeyboardInterrupt as exc:  # before the flight could answer it: nothing flew
+            print(f"\nmavadrc fly: {_interrupted_word(exc)}: nothing flew", file=sys.stderr)
+            return _interrupt_status(exc)
 
 
 def _main(args):
@@ -291,7 +335,7 @@ def _main(args):
         return 2
     except Interrupted as exc:
         print(f"\nmavadrc fly: {exc}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return exc.status
     except (FlightError, LinkError) as exc:
         print(f"\nmavadrc fly: {exc}", file=sys.stderr)
         return 1
@@ -307,7 +351,7 @@ def _main(args):
         state += f"; last known: {summary['last_known_state']}"
     print(f"  {summary['duration_s']:.1f} s, {state}; record in {folder}")
     if interrupted(summary):
-        return EXIT_INTERRUPTED
+        return interrupt_status(summary)
     return 0 if summary["landed"] else 1
 
 

@@ -645,7 +645,7 @@ def main(args):
     except (ConfigError, UsageError) as exc:
         return fail(exc, 2)
     except Interrupted as exc:
-        return fail(exc, EXIT_INTERRUPTED)
+        return fail(exc, exc.status)
     except (FlightError, LinkError) as exc:
         return fail(exc, 1)
     except OSError as exc:

@@ -1,0 +1,157 @@
+"""A companion whose console or terminal goes away, or that is asked to stop, still flies its
+vehicle down: a reader of its output that quits (``| head``), an SSH session lost (SIGHUP) or a
+service manager stopping it (SIGTERM) never leaves a vehicle in the air to its autopilot's
+failsafe.  Flown for real on PX4 SIH: a companion whose stdout pipe closed died of the
+BrokenPipeError its console raised mid-identification, wrote no summary, and PX4's failsafe
+landed the vehicle and left it in OFFBOARD."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mavadrc.console import Console, Guarded, Terminated, interrupt_reason
+from mavadrc.fly import interrupt_status
+
+MISSIONS = Path(__file__).resolve().parent.parent / "configs" / "missions"
+
+
+def _closed_pipe():
+    r, w = os.pipe()
+    os.close(r)
+    return os.fdopen(w, "w")
+
+
+def test_a_stream_whose_reader_is_gone_goes_quiet_and_hands_its_text_on():
+    out, said = _closed_pipe(), []
+    g = Guarded(out, fallback=said.append)
+    g.write("flying ladrc\n")
+    g.flush()  # the pipe's reader is gone: EPIPE, raised here or at the write
+    assert g.lost is not None and g.lost.startswith("BrokenPipeError")
+    g.write("landed\n")
+    g.flush()
+    assert "".join(said).split() == ["flying", "ladrc", "landed"]
+    # the descriptor now writes to the null device: what Python flushes at exit cannot fail
+    assert os.write(out.fileno(), b"late") == 4
+    out.close()
+
+
+def test_the_console_says_to_its_fallback_once_its_stream_fails():
+    said = []
+    c = Console(_closed_pipe(), progress=True, fallback=said.append)
+    c.say("input model identified")
+    c.progress("hover", 1.0, 10.0, 0.01)  # the live line is no record: not kept
+    c.vehicle("Takeoff detected")
+    assert c.lost is not None
+    assert "".join(said).splitlines() == ["input model identified", "  vehicle: Takeoff detected"]
+
+
+def test_a_working_stream_is_written_as_it_was():
+    import io
+    s = io.StringIO()
+    g = Guarded(s, fallback=lambda text: pytest.fail("nothing failed"))
+    g.write("a\n")
+    g.flush()
+    assert s.getvalue() == "a\n" and g.lost is None and not g.isatty()
+
+
+def test_sigterm_reads_as_a_termination_with_its_shell_status():
+    exc = Terminated(signal.SIGTERM)
+    assert isinstance(exc, KeyboardInterrupt) and exc.signame == "SIGTERM"
+    assert interrupt_reason(exc) == "terminated by SIGTERM"
+    assert interrupt_reason(KeyboardInterrupt()) == "interrupted by the user"
+    assert interrupt_status({"aborted": ["terminated by SIGTERM"]}) == 143
+    assert interrupt_status({"aborted": ["interrupted by the user"]}) == 130
+    assert interrupt_status({"aborted": ["geofence"]}) is None
+
+
+# --- end to end, the bundled vehicle in real time ------------------------------------------------
+
+def _start(tmp_path, duration=None, stdout=subprocess.PIPE):
+    text = (MISSIONS / "hover.yaml").read_text()
+    if duration is not None:
+        text = text.replace("duration: 5", f"duration: {duration}")
+    path = tmp_path / "m.yaml"
+    path.write_text(text)
+    out = tmp_path / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "mavadrc", "fly", str(path), "--out", str(out),
+                             "--no-figures", "-q"], stdout=stdout, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    return proc, out
+
+
+def _wait_rows(out, n=50, timeout=300.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        for p in out.glob("*/controller.csv"):
+            try:
+                if sum(1 for _ in open(p)) > n:
+                    return p.parent
+            except OSError:
+                pass
+        time.sleep(0.05)
+    raise AssertionError("the mission did not start")
+
+
+def _finish(proc, timeout=120):
+    try:
+        return proc.wait(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_a_flight_whose_output_pipe_closes_flies_on_and_lands(tmp_path):
+    proc, out = _start(tmp_path)
+    first = proc.stdout.readline()  # a reader that quits after a line, as `| head -1` does
+    proc.stdout.close()
+    status = _finish(proc)
+    folder = next(out.glob("*/summary.json")).parent
+    summary = json.loads((folder / "summary.json").read_text())
+    assert first.strip()
+    assert status == 0, (folder / "companion.log").read_text()
+    assert summary["landed"] and summary["disarmed"] and summary["aborted"] == []
+    assert summary["console"]["lost"].startswith("BrokenPipeError")
+    log = (folder / "companion.log").read_text()
+    # what the console would have said is kept: the flight's closing line among it
+    assert "landed" in log and "disarmed" in log and "Traceback" not in log
+
+
+def test_sigterm_holds_then_lands_and_exits_as_shells_expect(tmp_path):
+    proc, out = _start(tmp_path, duration=60)
+    try:
+        folder = _wait_rows(out)
+        os.kill(proc.pid, signal.SIGTERM)  # the companion only, as `kill` or systemd send it
+        output, _ = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert "terminated (SIGTERM): hold, then land" in output
+    assert summary["aborted"] == ["terminated by SIGTERM"]
+    assert summary["disarmed"]  # landed and disarmed: never left to the autopilot in offboard
+    assert summary["duration_s"] < 40  # cut short: not the 60 s hover flown to its end
+    assert proc.returncode == 128 + signal.SIGTERM and "Traceback" not in output
+
+
+def test_sighup_is_flown_through(tmp_path):
+    proc, out = _start(tmp_path)
+    try:
+        folder = _wait_rows(out)
+        # the terminal gone: the hangup reaches the whole process group, the bundled vehicle too,
+        # which must fly on with the companion (without a handler, the end of both)
+        os.killpg(proc.pid, signal.SIGHUP)
+        output, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert proc.returncode == 0, output
+    assert summary["landed"] and summary["aborted"] == []
+    assert summary["console"]["hung_up_at_s"] is not None and summary["console"]["lost"] is None
+    assert "SIGHUP" in (folder / "companion.log").read_text()
