@@ -1408,6 +1408,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """Wall-clock duties: heartbeat and time sync out, commands re-sent, stale telemetry,
         the deadline, the failsafe's progress, and lockstep kicks."""
         link = self.link
+        if self.rec.lost is not None and "record" not in self._warned:
+            self._warn_once("record", f"the record stopped being written ({self.rec.lost}): the "
+                            "flight goes on without it", every=math.inf)
         if now - self._hb_wall >= 1.0:
             self._hb_wall = now
             link.send_heartbeat()
@@ -1543,6 +1546,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             # the console (stdout) failing or the terminal hanging up ends nothing: the flight
             # went on, and what the console would have said is in companion.log
             "console": {"lost": self.console.lost, "hung_up_at_s": self.hung_up_at},
+            # a record file that could not be written (a full disk): given up, flown on
+            "record_lost": self.rec.lost,
             "last_known_state": self.last_known(),
             "samples": self.gate.received,
             "control_steps": self.steps,
@@ -1600,7 +1605,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary["controller_flown"] = self.controller_record()
         summary.update(self.context)
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
-        self.rec.write_summary(summary)
+        try:
+            self.rec.write_summary(summary)
+        except OSError as exc:
+            self.say(f"summary.json could not be written ({exc.strerror or exc}); the summary "
+                     "follows here only")
         return summary
 
 

@@ -160,7 +160,10 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
             summary = flight.run()
         finally:
             if flight.summary is not None:
-                write_effective(folder, mission, flight.summary, bundled=connect is None)
+                try:
+                    write_effective(folder, mission, flight.summary, bundled=connect is None)
+                except OSError as exc:  # a full disk: the flight is flown, its record as it is
+                    stream.write(f"effective.yaml could not be written ({exc.strerror or exc})\n")
     except KeyboardInterrupt as exc:
         summary = None  # before the flight could answer it: nothing was heard, nothing flew
         raise Interrupted(f"{_interrupted_word(exc)}{f' while waiting for {url}' if url else ''}"
@@ -297,7 +300,7 @@ def draw_figures(folder, stream):
         return
     try:
         plot_record(folder)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         stream.write(f"figures skipped: {exc}\n")
 
 

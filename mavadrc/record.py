@@ -45,6 +45,41 @@ COLUMNS = (
 )
 
 
+def _stopped(f, exc, writer):
+    """A record file that could not be written (a full disk, a card pulled out): the writer
+    stops writing it (returns None for its file, closed as far as it will) and says why in its
+    ``lost``.  The flight goes on: a record is never a reason to drop a vehicle."""
+    if writer.lost is None:
+        writer.lost = f"{writer.path.name}: {exc.strerror or exc}" + (
+            f" (errno {exc.errno})" if exc.errno else "")
+    try:
+        f.close()
+    except OSError:
+        pass
+    return None
+
+
+class _Unwritten:
+    """A table that could not even be opened: takes rows and writes nothing (``lost`` says
+    why)."""
+
+    def __init__(self, path, exc):
+        self.path = Path(path)
+        self.lost = None
+        _stopped(_Closed(), exc, self)
+
+    def row(self, values):
+        pass
+
+    def close(self):
+        pass
+
+
+class _Closed:
+    def close(self):
+        pass
+
+
 class TlogWriter:
     """Writes a .tlog: each record is the Unix time in microseconds (big-endian u64) + a frame."""
 
@@ -53,6 +88,7 @@ class TlogWriter:
         self._f = open(self.path, "wb")
         self.frames = 0
         self._flushed = time.monotonic()
+        self.lost = None  # why the file stopped being written (a full disk): see _Stops
 
     def write(self, frame, t_us=None):
         """Append one frame (buffered: :meth:`flush` puts it on disk; the link flushes before
@@ -61,7 +97,11 @@ class TlogWriter:
             return
         if t_us is None:
             t_us = int(time.time() * 1e6)
-        self._f.write(struct.pack(">Q", t_us) + bytes(frame))
+        try:
+            self._f.write(struct.pack(">Q", t_us) + bytes(frame))
+        except OSError as exc:
+            self._f = _stopped(self._f, exc, self)
+            return
         self.frames += 1
         now = time.monotonic()
         if now - self._flushed > 0.25:  # and at least every quarter second of a busy link
@@ -69,13 +109,20 @@ class TlogWriter:
 
     def flush(self):
         if self._f is not None:
-            self._f.flush()
+            try:
+                self._f.flush()
+            except OSError as exc:
+                self._f = _stopped(self._f, exc, self)
+                return
             self._flushed = time.monotonic()
 
     def close(self):
         if self._f is not None:
-            self._f.close()
-            self._f = None
+            f, self._f = self._f, None
+            try:
+                f.close()
+            except OSError as exc:
+                _stopped(f, exc, self)
 
 
 class TableWriter:
@@ -95,24 +142,33 @@ class TableWriter:
         self.flush_every = flush_every
         self._text = [i for i, c in enumerate(columns) if c in text]
         self._fmt = ",".join(["%.9g"] * len(columns))
+        self.lost = None  # why the file stopped being written (a full disk): see _stopped
 
     def row(self, values):
+        if self._f is None:
+            return
         nums = list(values)
         for i in self._text:
             nums[i] = 0.0
         cells = (self._fmt % tuple(nums)).replace("nan", "").split(",")
         for i in self._text:
             cells[i] = values[i]
-        self._w.writerow(cells)
-        self._n += 1
-        if self._n % self.flush_every == 0:
-            self._f.flush()
+        try:
+            self._w.writerow(cells)
+            self._n += 1
+            if self._n % self.flush_every == 0:
+                self._f.flush()
+        except OSError as exc:
+            self._f = _stopped(self._f, exc, self)
 
     def close(self):
         if self._f is not None:
-            self._f.flush()
-            self._f.close()
-            self._f = None
+            f, self._f = self._f, None
+            try:
+                f.flush()
+                f.close()
+            except OSError as exc:
+                _stopped(f, exc, self)
 
 
 def finite(x):
@@ -254,8 +310,18 @@ class FlightRecord:
         self.tlog = TlogWriter(self.folder / "flight.tlog")
         self.table = TableWriter(self.folder / "controller.csv")
         self.truth = None  # truth.csv, opened with the first true sample of the mission
+        self._log_lost = None  # companion.log's, as the writers' ``lost``
         if mission_text is not None:
             (self.folder / "mission.yaml").write_text(mission_text)
+
+    @property
+    def lost(self):
+        """None while every file of the record is written; else why the first stopped (the
+        flight goes on without it)."""
+        for w in (self.tlog, self.table, self.truth):
+            if w is not None and w.lost is not None:
+                return w.lost
+        return self._log_lost
 
     def write_summary(self, summary):
         """summary.json, strict JSON: a NaN or an infinity is written as null."""
@@ -265,14 +331,24 @@ class FlightRecord:
         os.replace(tmp, self.folder / "summary.json")
 
     def note(self, text):
-        """Append to companion.log (tracebacks of errors the flight survived)."""
-        with open(self.folder / "companion.log", "a") as f:
-            f.write(time.strftime("%H:%M:%S ") + text.rstrip() + "\n")
+        """Append to companion.log (tracebacks of errors the flight survived); a log that
+        cannot be written is given up, never raised (:attr:`lost`)."""
+        if self._log_lost is not None:
+            return
+        try:
+            with open(self.folder / "companion.log", "a") as f:
+                f.write(time.strftime("%H:%M:%S ") + text.rstrip() + "\n")
+        except OSError as exc:
+            self._log_lost = f"companion.log: {exc.strerror or exc}"
 
     def truth_table(self, columns):
-        """truth.csv (a simulator's true state, :mod:`mavadrc.truth`), opened on first use."""
+        """truth.csv (a simulator's true state, :mod:`mavadrc.truth`), opened on first use (a
+        file that cannot be opened is given up as one that stops: :attr:`lost`)."""
         if self.truth is None:
-            self.truth = TableWriter(self.folder / "truth.csv", columns=columns, text=())
+            try:
+                self.truth = TableWriter(self.folder / "truth.csv", columns=columns, text=())
+            except OSError as exc:
+                self.truth = _Unwritten(self.folder / "truth.csv", exc)
         return self.truth
 
     def close(self):

@@ -155,3 +155,51 @@ def test_sighup_is_flown_through(tmp_path):
     assert summary["landed"] and summary["aborted"] == []
     assert summary["console"]["hung_up_at_s"] is not None and summary["console"]["lost"] is None
     assert "SIGHUP" in (folder / "companion.log").read_text()
+
+
+# --- a record that cannot be written ---------------------------------------------------------------
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (Linux)")
+def test_a_disk_that_fills_mid_flight_stops_the_record_not_the_flight(tmp_path, monkeypatch):
+    """An SD card fills in the air: every file of the record then meets ENOSPC (the writers'
+    files swapped for /dev/full, companion.log and summary.json made unwritable).  Before, the
+    first failed row was an error in the companion, the land it set off failed on the tlog
+    write of its own command, and the OSError left the vehicle to its autopilot."""
+    import csv
+    import io
+
+    import mavadrc.record as R
+    from mavadrc.fly import fly
+    from mavadrc.mission import load_mission
+
+    records = []
+    init = R.FlightRecord.__init__
+
+    def recording(self, *a, **k):
+        init(self, *a, **k)
+        records.append(self)
+
+    row = R.TableWriter.row
+    rows = [0]
+
+    def filling(self, values):
+        rows[0] += 1
+        if rows[0] == 500:  # 5 s into the mission, at 100 Hz
+            rec = records[-1]
+            rec.table._f = open("/dev/full", "w")
+            rec.table._w = csv.writer(rec.table._f)
+            rec.tlog._f = open("/dev/full", "wb")
+            rec.folder = Path("/dev/full/none")  # the notes and summary.json: ENOTDIR
+        return row(self, values)
+
+    monkeypatch.setattr(R.FlightRecord, "__init__", recording)
+    monkeypatch.setattr(R.TableWriter, "row", filling)
+    out = io.StringIO()
+    summary, _ = fly(load_mission(MISSIONS / "hover.yaml"), out=tmp_path, lockstep=True,
+                     figures=False, progress=False, stream=out)
+    said = out.getvalue()
+    assert summary["landed"] and summary["disarmed"] and summary["aborted"] == []
+    assert "No space left on device" in summary["record_lost"]
+    assert any("the record stopped being written" in w for w in summary["warnings"])
+    assert "error in the companion" not in said
+    assert "summary.json could not be written" in said
