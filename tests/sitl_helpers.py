@@ -201,3 +201,18 @@ def both_paths(exp, i, j, seed, tmp_path):
     assert len(pos) == len(log)
     assert np.allclose(tab["t"], log[:, L_T], atol=1e-9)
     return rec_fast, log, rec_wire, tab, pos
+
+
+def wait_rows(folder_glob, n, timeout=60.0):
+    """The folder of the first file ``folder_glob()`` yields that has more than ``n`` lines (a
+    flight's controller.csv: the mission has started), within ``timeout`` s."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        for p in folder_glob():
+            try:
+                if sum(1 for _ in open(p)) > n:
+                    return p.parent
+            except OSError:
+                pass
+        time.sleep(0.05)
+    raise AssertionError("the mission did not start")

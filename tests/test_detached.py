@@ -10,13 +10,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from mavadrc.console import Console, Guarded, Terminated, interrupt_reason
 from mavadrc.fly import interrupt_status
+from sitl_helpers import wait_rows
 
 MISSIONS = Path(__file__).resolve().parent.parent / "configs" / "missions"
 
@@ -86,16 +86,7 @@ def _start(tmp_path, duration=None, stdout=subprocess.PIPE):
 
 
 def _wait_rows(out, n=50, timeout=300.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        for p in out.glob("*/controller.csv"):
-            try:
-                if sum(1 for _ in open(p)) > n:
-                    return p.parent
-            except OSError:
-                pass
-        time.sleep(0.05)
-    raise AssertionError("the mission did not start")
+    return wait_rows(lambda: out.glob("*/controller.csv"), n, timeout)
 
 
 def _finish(proc, timeout=120):

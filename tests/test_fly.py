@@ -25,6 +25,7 @@ from mavadrc.mission import load_mission  # noqa: E402
 from mavadrc.sequence import PX4_OFFBOARD  # noqa: E402
 from mavadrc.record import FlightRecord, read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
+from sitl_helpers import wait_rows  # noqa: E402
 
 MISSIONS = Path(__file__).resolve().parent.parent / "configs" / "missions"
 M = mavutil.mavlink
@@ -252,17 +253,6 @@ def test_mode_or_arming_refused_stops_the_flight_with_the_vehicles_answer(cmd, w
         assert (fake.mode >> 16) & 0xFF != PX4_OFFBOARD[0]
 
 
-def wait_rows(folder_glob, n, timeout=60.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        for p in folder_glob():
-            try:
-                if sum(1 for _ in open(p)) > n:
-                    return p.parent
-            except OSError:
-                pass
-        time.sleep(0.05)
-    raise AssertionError("the mission did not start")
 
 
 def test_link_lost_mid_flight_engages_the_failsafe_and_the_record_is_complete(tmp_path):
