@@ -160,6 +160,16 @@ def can_fork():
     return sys.platform == "linux" and hasattr(os, "fork") and threading.active_count() == 1
 
 
+def _end_with_the_companion():
+    """Linux: SIGTERM to the forked vehicle when the companion that forked it dies, however it
+    dies (SIGKILL included): a vehicle no companion will ever fly again is not left running."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _outlive_the_terminal():
     # Ctrl-C in a terminal reaches the whole process group, and so does the hangup of a terminal
     # that goes away; the flight answers both (hold and land; fly on) and needs the vehicle
@@ -187,6 +197,7 @@ class ForkedVehicle:
             try:
                 gc.freeze()  # the inherited heap is not ours to collect (nor to copy, page by page)
                 _outlive_the_terminal()
+                _end_with_the_companion()
                 fd = os.open(log_path if log_path is not None else os.devnull,
                              os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
                 os.dup2(fd, 1)

@@ -19,6 +19,9 @@ from .supervisor import GIVE_UP, HOLD_THEN_LAND, LAND, WATCH
 RESEND_S = 1.0
 #: no heartbeat for this long (s) while landing: the vehicle cannot be reached
 UNREACHABLE_S = 10.0
+#: the hold a failsafe asks for before landing, not shown this long (s) after it was first
+#: asked, or refused (ArduCopter's BRAKE without a position estimate), is skipped: land
+HOLD_CONFIRM_S = 3.0
 
 
 class Failsafes:
@@ -51,6 +54,7 @@ class Failsafes:
         self._failsafe_wall = time.monotonic()
         self._failsafe_sent = 0.0
         self._hold_point = None
+        self._hold_cmd = None  # the last hold asked for (its answer)
         if self.phase in ("spoolup",) and not self._lifted:
             self._failsafe_step = "disarm"
         elif action == HOLD_THEN_LAND:
@@ -70,7 +74,19 @@ class Failsafes:
         if now - self._failsafe_sent < RESEND_S:
             return
         hb = self.link.heartbeat_since(self._failsafe_sent) if self._failsafe_sent else None
-        if step == "hold" and hb is not None and (self.seq.is_hold(hb) or self.seq.is_landing(hb)):
+        held = step == "hold" and hb is not None and (self.seq.is_hold(hb)
+                                                      or self.seq.is_landing(hb))
+        refused = self._hold_cmd is not None and self._hold_cmd.result not in (
+            None, M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_IN_PROGRESS)
+        if step == "hold" and not held and (refused
+                                            or now - self._failsafe_wall >= HOLD_CONFIRM_S):
+            why = ("the autopilot refused its hold mode" if refused
+                   else f"no hold shown in {HOLD_CONFIRM_S:g} s")
+            self.say(f"{why}: landing without it")
+            self._failsafe_step = "land"
+            self._failsafe_sent = 0.0
+            return self._failsafe_command(now)
+        if held:
             if now - self._failsafe_wall >= 2.0:
                 self._failsafe_step = "land"
                 self._failsafe_sent = 0.0
@@ -85,7 +101,7 @@ class Failsafes:
             return
         self._failsafe_sent = now
         if step == "hold":
-            self.seq.request_hold(self.link)
+            self._hold_cmd = self.seq.request_hold(self.link)
         elif step == "land":
             self.link.command(M.MAV_CMD_NAV_LAND)
         elif step == "disarm":

@@ -525,6 +525,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._failsafe_step = None  # "hold" or "land": the mode asked for now
         self._failsafe_wall = 0.0
         self._failsafe_sent = 0.0
+        self._hold_cmd = None
         self._hold_point = None
         self._interrupts = 0
         self._exceptions = 0

@@ -59,6 +59,7 @@ _AP_NUMBER = {name: number for number, name in mavutil.mode_mapping_acm.items()}
 AP_GUIDED_NOGPS = _AP_NUMBER["GUIDED_NOGPS"]
 AP_GUIDED = _AP_NUMBER["GUIDED"]
 AP_LOITER = _AP_NUMBER["LOITER"]
+AP_BRAKE = _AP_NUMBER["BRAKE"]
 AP_LAND = _AP_NUMBER["LAND"]
 AP_RTL = _AP_NUMBER["RTL"]
 AP_SMART_RTL = _AP_NUMBER["SMART_RTL"]
@@ -150,7 +151,15 @@ class PX4Sequence(Sequence):
 
 
 class ArduPilotSequence(Sequence):
-    """ArduCopter: GUIDED_NOGPS with GUID_OPTIONS bit 3 (thrust means thrust), LOITER, LAND."""
+    """ArduCopter: GUIDED_NOGPS with GUID_OPTIONS bit 3 (thrust means thrust), BRAKE to hold,
+    LAND; LOITER once disarmed.
+
+    The hold is BRAKE, never LOITER: LOITER (like ALT_HOLD and POSHOLD) flies the pilot's
+    throttle stick as a climb rate, so with the stick at minimum, or no pilot at all, it sinks
+    at the pilot's full descent rate. Flown on ArduCopter SITL, a companion's hold in LOITER
+    met the ground from 3 m at 2.49 m/s. BRAKE stops the vehicle and holds its position and
+    height with no pilot input (it needs a position estimate: refused without one, and the
+    failsafe then lands at once)."""
 
     name = "ardupilot"
     control_mode = "GUIDED_NOGPS"
@@ -173,13 +182,18 @@ class ArduPilotSequence(Sequence):
         return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED_NOGPS)
 
     def request_hold(self, link):
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_BRAKE)
+
+    def release(self, link):
+        """Disarmed on the ground: LOITER, a mode a pilot can arm in (BRAKE is not armable),
+        so the next companion does not find the vehicle in ours."""
         return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_LOITER)
 
     def in_control(self, heartbeat):
         return heartbeat.custom_mode in (AP_GUIDED_NOGPS, AP_GUIDED)
 
     def is_hold(self, heartbeat):
-        return heartbeat.custom_mode == AP_LOITER
+        return heartbeat.custom_mode == AP_BRAKE
 
     def is_landing(self, heartbeat):
         return heartbeat.custom_mode in (AP_LAND, AP_RTL, AP_SMART_RTL)

@@ -119,7 +119,7 @@ class Autopilot:
             p = self.reported().position
             if math.hypot(p[0], p[1]) < 0.5:
                 self.rtl_phase = "land"
-                v.land()
+                v.land(self.ap.land_speed(self.params))
         # auto-disarm: the personality's rules (landed for a while, or no takeoff after arming)
         if v.armed:
             why = self.ap.auto_disarm(self.params, t, self._armed_t, self._taken_off,
@@ -335,7 +335,10 @@ class Autopilot:
                 v.hold()  # on the ground: idle, whatever offboard thrust was last asked for
         elif b == PP.LAND:
             if v.armed:
-                v.land()
+                v.land(self.ap.land_speed(self.params))
+        elif b == PP.PILOT:
+            if v.armed:
+                v.land(self.ap.pilot_descent(self.params))  # no pilot: the throttle at minimum
         elif b == PP.RTL:
             if v.armed and not v.landed:
                 p = v.reported().position

@@ -36,6 +36,12 @@ TAKEOFF = "takeoff"
 LAND = "land"
 RTL = "rtl"
 OFFBOARD = "offboard"  # PX4 OFFBOARD and ArduPilot GUIDED / GUIDED_NOGPS: external setpoints
+# a mode flown on the pilot's sticks (ArduCopter's LOITER, ALT_HOLD, POSHOLD: the throttle stick
+# is a climb rate).  The bundled vehicle has no pilot: its throttle sits at minimum, as an
+# ArduPilot SITL's does when nothing drives its RC, and the vehicle descends at the pilot's
+# full descent rate (here within the bundled firmware's 1.5 m/s descent limit) until it lands (flown on ArduCopter SITL: a companion's hold in LOITER sank
+# from 3 m and met the ground at 2.49 m/s, PILOT_SPEED_UP's 2.5)
+PILOT = "pilot"
 
 INT = mavlink.MAV_PARAM_TYPE_INT32
 REAL = mavlink.MAV_PARAM_TYPE_REAL32
@@ -400,6 +406,10 @@ class Personality:
         """Minimum altitude (m above home) of the return to launch."""
         raise NotImplementedError
 
+    def land_speed(self, params):
+        """m/s: the final descent of the land mode (and of a return's landing)."""
+        raise NotImplementedError
+
     def takeoff_altitude(self, params, p7, home_alt):
         """Takeoff altitude (m above home) of MAV_CMD_NAV_TAKEOFF with param7 ``p7`` (NaN: none
         given) for a home at ``home_alt`` m AMSL; None: the command is denied."""
@@ -496,6 +506,9 @@ class PX4(Personality):
     def rtl_altitude(self, params):
         return float(params["RTL_RETURN_ALT"][0])
 
+    def land_speed(self, params):
+        return float(params["MPC_LAND_SPEED"][0])
+
     def takeoff_altitude(self, params, p7, home_alt):
         """MIS_TAKEOFF_ALT, or param7 (AMSL) if it is at least 1 m above home."""
         if math.isfinite(p7) and p7 - home_alt >= 1.0:
@@ -587,6 +600,9 @@ class ArduCopter(Personality):
     def rtl_altitude(self, params):
         return float(params["RTL_ALT"][0]) / 100.0
 
+    def land_speed(self, params):
+        return float(params["LAND_SPEED"][0]) / 100.0
+
     def takeoff_altitude(self, params, p7, home_alt):
         """param7, the altitude above home, in GUIDED (Mode::do_user_takeoff); denied unless
         it is above home."""
@@ -608,6 +624,12 @@ class ArduCopter(Personality):
     def disarm_allowed(self, ld):
         # AP_Arming_Copter::disarm: "do not allow disarm via mavlink if we think we are flying"
         return ld.landed
+
+    def pilot_descent(self, params):
+        """m/s: the descent of a mode flown on the pilot's sticks with the throttle at minimum
+        (:data:`PILOT`): PILOT_SPEED_DN, or PILOT_SPEED_UP where that is 0."""
+        dn = float(params["PILOT_SPEED_DN"][0])
+        return (dn if dn > 0.0 else float(params["PILOT_SPEED_UP"][0])) / 100.0
 
     def auto_disarm(self, params, t, armed_t, taken_off, landed_since):
         """Copter::auto_disarm_check (motors.cpp): landed, motors at ground idle and throttle
@@ -750,14 +772,16 @@ _ARDUPILOT_MESSAGES = frozenset((
 def ardupilot():
     modes = {
         "STABILIZE": Mode("STABILIZE", 0, HOLD),
-        "ALT_HOLD": Mode("ALT_HOLD", 2, HOLD),
+        "ALT_HOLD": Mode("ALT_HOLD", 2, PILOT),
         "AUTO": Mode("AUTO", 3, HOLD),
         "GUIDED": Mode("GUIDED", 4, OFFBOARD),
-        "LOITER": Mode("LOITER", 5, HOLD),
+        "LOITER": Mode("LOITER", 5, PILOT),
         "RTL": Mode("RTL", 6, RTL, armable=False),
         "LAND": Mode("LAND", 9, LAND, armable=False),
-        "POSHOLD": Mode("POSHOLD", 16, HOLD),
-        "BRAKE": Mode("BRAKE", 17, HOLD),
+        "POSHOLD": Mode("POSHOLD", 16, PILOT),
+        # mode_brake.cpp: stops and holds the position and the height, no pilot input; not
+        # armable (Mode::allows_arming)
+        "BRAKE": Mode("BRAKE", 17, HOLD, armable=False),
         "GUIDED_NOGPS": Mode("GUIDED_NOGPS", 20, OFFBOARD),
     }
     params = [
@@ -768,7 +792,7 @@ def ardupilot():
         # thrust curve the motor outputs are linearised with (AP_MOTORS_THST_EXPO_DEFAULT)
         ("MOT_THST_EXPO", 0.65, REAL),
         ("PILOT_SPEED_UP", 250, INT),  # cm/s
-        ("PILOT_SPEED_DN", 150, INT),  # cm/s
+        ("PILOT_SPEED_DN", 0, INT),  # cm/s; 0: PILOT_SPEED_UP (Copter::get_pilot_speed_dn)
         ("LAND_SPEED", 50, INT),  # cm/s
         ("WPNAV_SPEED_UP", 250, REAL),  # cm/s
         ("DISARM_DELAY", 10, INT),  # s landed before disarming by itself (0: never)

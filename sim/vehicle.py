@@ -569,12 +569,13 @@ class SimVehicle:
         self._landed_at = None
         self._mode = "takeoff"
 
-    def land(self):
+    def land(self, speed=None):
+        """Descend where it is to the ground, at the firmware's land speed or ``speed`` (m/s)."""
         if not self.armed or self.landed:
             self._set_idle()
             return
         r = self.reported()
-        self.nav.land(r.position, r.euler[2])
+        self.nav.land(r.position, r.euler[2], speed)
         self._mode = "land"
 
     def hold(self):

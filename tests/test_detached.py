@@ -94,7 +94,7 @@ def _finish(proc, timeout=120):
         return proc.wait(timeout=timeout)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)  # the bundled vehicle in its group too
 
 
 def test_a_flight_whose_output_pipe_closes_flies_on_and_lands(tmp_path):
@@ -121,7 +121,7 @@ def test_sigterm_holds_then_lands_and_exits_as_shells_expect(tmp_path):
         output, _ = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)  # the bundled vehicle in its group too
     summary = json.loads((folder / "summary.json").read_text())
     assert "terminated (SIGTERM): hold, then land" in output
     assert summary["aborted"] == ["terminated by SIGTERM"]
@@ -140,7 +140,7 @@ def test_sighup_is_flown_through(tmp_path):
         output, _ = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)  # the bundled vehicle in its group too
     summary = json.loads((folder / "summary.json").read_text())
     assert proc.returncode == 0, output
     assert summary["landed"] and summary["aborted"] == []
@@ -194,3 +194,87 @@ def test_a_disk_that_fills_mid_flight_stops_the_record_not_the_flight(tmp_path, 
     assert any("the record stopped being written" in w for w in summary["warnings"])
     assert "error in the companion" not in said
     assert "summary.json could not be written" in said
+
+
+# --- the hold a failsafe asks of ArduCopter -----------------------------------------------------
+
+def _interrupted_ardupilot_flight(tmp_path, monkeypatch, at_s=8.0):
+    """The bundled ArduCopter hovering at 1.5 m, interrupted (as Ctrl-C or SIGTERM are taken)
+    ``at_s`` s into its mission: the failsafe holds, then lands."""
+    import io
+
+    from mavadrc.flight import Flight
+    from mavadrc.fly import fly
+    from mavadrc.mission import load_mission
+
+    step = Flight._mission_step
+    fired = []
+
+    def interrupting(self, s):
+        if not fired and self.mission_start is not None and s.t - self.mission_start > at_s:
+            fired.append(s.t)
+            raise KeyboardInterrupt
+        return step(self, s)
+
+    monkeypatch.setattr(Flight, "_mission_step", interrupting)
+    path = tmp_path / "m.yaml"
+    path.write_text((MISSIONS / "ardupilot_hover.yaml").read_text()
+                    .replace("duration: 5", "duration: 20"))
+    out = io.StringIO()
+    # in real time: in lockstep the vehicle's clock waits on the companion, which sends nothing
+    # while the autopilot holds, so a hold would take no simulated time at all
+    summary, folder = fly(load_mission(path), out=tmp_path, figures=False, progress=False,
+                          stream=out)
+    assert fired
+    return summary, folder, out.getvalue()
+
+
+def test_an_ardupilot_failsafe_holds_in_brake_and_lands_at_its_land_speed(tmp_path, monkeypatch):
+    """ArduCopter's LOITER flies the pilot's throttle stick as a climb rate: asked to hold in it,
+    a vehicle with no pilot (or the stick down) sinks at the pilot's full rate; flown on
+    ArduCopter SITL, it met the ground from 3 m at 2.49 m/s. The hold is BRAKE: the vehicle
+    stays where it was until LAND brings it down at LAND_SPEED (0.5 m/s)."""
+    from mavadrc.record import read_table
+
+    summary, folder, said = _interrupted_ardupilot_flight(tmp_path, monkeypatch)
+    assert summary["aborted"] == ["interrupted by the user"] and summary["disarmed"], said
+    assert "refused" not in said and "the autopilot is in LAND: watching it land" in said
+    truth = read_table(folder / "truth.csv")  # the simulator's own (SIM_STATE)
+    after = truth["t"] > 8.0
+    assert truth["vd"][after].max() < 0.6, truth["vd"][after].max()  # LAND's 0.5 m/s, no drop
+
+
+def test_a_hold_the_autopilot_refuses_is_skipped_for_its_land(tmp_path, monkeypatch):
+    """ArduCopter refuses BRAKE without a position estimate (GUIDED_NOGPS flown indoors): the
+    failsafe lands at once instead of asking again until its landing bound runs out."""
+    import mavadrc.sequence as S
+
+    monkeypatch.setattr(S, "AP_BRAKE", 99)  # a mode the vehicle does not have: refused
+    summary, folder, said = _interrupted_ardupilot_flight(tmp_path, monkeypatch)
+    assert "the autopilot refused its hold mode: landing without it" in said
+    assert summary["disarmed"] and summary["duration_s"] < 8.0 + 1.5 / 0.4 + 15.0
+
+
+def test_a_companion_killed_outright_takes_its_forked_vehicle_with_it(tmp_path):
+    """SIGKILL leaves a companion no say; the bundled vehicle it forked (which ignores Ctrl-C
+    and hangups, to be flown down) must not run on for ever with nobody to fly it."""
+    psutil = pytest.importorskip("psutil")
+    from mavadrc.embedded import can_fork
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the forked vehicle and its parent-death signal are Linux's")
+    proc, out = _start(tmp_path, duration=60, stdout=subprocess.DEVNULL)
+    try:
+        _wait_rows(out)
+        children = psutil.Process(proc.pid).children()
+        assert children or not can_fork(), "no vehicle was forked"
+        os.kill(proc.pid, signal.SIGKILL)  # the companion only
+        proc.wait(timeout=10)
+        gone, alive = psutil.wait_procs(children, timeout=10)
+        assert not alive, [p.pid for p in alive]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        for p in psutil.Process().children(recursive=True):
+            if "mavadrc" in " ".join(p.cmdline()):
+                p.kill()

@@ -260,8 +260,10 @@ class Navigator:
         self.yaw_rate = math.nan
         self.mode = "hold"
 
-    def land(self, pos, yaw):
-        self._set(pos=(pos[0], pos[1], math.nan), vel=(math.nan, math.nan, self.land_speed))
+    def land(self, pos, yaw, speed=None):
+        """Descend at ``speed`` m/s (the land speed if None) above ``pos``."""
+        speed = self.land_speed if speed is None else float(speed)
+        self._set(pos=(pos[0], pos[1], math.nan), vel=(math.nan, math.nan, speed))
         self.yaw = yaw
         self.yaw_rate = math.nan
         self.mode = "land"
