@@ -154,12 +154,27 @@ class Terminated(KeyboardInterrupt):
         super().__init__(self.signame)
 
 
+#: the exit status of a command the user interrupted (128 + SIGINT), as shells expect
+EXIT_INTERRUPTED = 130
+
+
 def interrupt_reason(exc):
     """What ended a flight interrupted by ``exc`` (a KeyboardInterrupt), as summary.json's
     ``aborted`` says it."""
     if isinstance(exc, Terminated):
         return f"terminated by {exc.signame}"
     return "interrupted by the user"
+
+
+def interrupt_word(exc):
+    """``exc`` (a KeyboardInterrupt) in one word or three, for "... : nothing flew"."""
+    return f"terminated by {exc.signame}" if isinstance(exc, Terminated) else "interrupted"
+
+
+def interrupt_exit_status(exc):
+    """The exit status ``exc`` (a KeyboardInterrupt) ends the command with: 130 for Ctrl-C, 128
+    plus the signal's number for a signal, as shells report them."""
+    return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 class FlightSignals:

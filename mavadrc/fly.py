@@ -22,7 +22,8 @@ from pathlib import Path
 
 from sim.yamlio import ConfigError
 
-from .console import FlightSignals, Terminated, guarded
+from .console import (EXIT_INTERRUPTED, FlightSignals, guarded, interrupt_exit_status,
+                      interrupt_word)
 from .flight import Flight, print_table
 from .link import FlightError, Link, LinkError, parse_url
 from .mission import load_mission
@@ -42,8 +43,6 @@ class Interrupted(Exception):
         self.status = EXIT_INTERRUPTED if status is None else status
 
 
-#: the exit status of a command the user interrupted (128 + SIGINT), as shells expect
-EXIT_INTERRUPTED = 130
 
 
 def check_options(*, connect=None, lockstep=False, seed=None, wind=None, timeout=None,
@@ -166,8 +165,8 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
                     stream.write(f"effective.yaml could not be written ({exc.strerror or exc})\n")
     except KeyboardInterrupt as exc:
         summary = None  # before the flight could answer it: nothing was heard, nothing flew
-        raise Interrupted(f"{_interrupted_word(exc)}{f' while waiting for {url}' if url else ''}"
-                          ": nothing flew", _interrupt_status(exc)) from None
+        raise Interrupted(f"{interrupt_word(exc)}{f' while waiting for {url}' if url else ''}"
+                          ": nothing flew", interrupt_exit_status(exc)) from None
     finally:
         signals.restore()
         heard = link is not None and link.heartbeat is not None
@@ -282,14 +281,6 @@ def interrupt_status(summary):
     return EXIT_INTERRUPTED
 
 
-def _interrupted_word(exc):
-    return f"terminated by {exc.signame}" if isinstance(exc, Terminated) else "interrupted"
-
-
-def _interrupt_status(exc):
-    return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
-
-
 def draw_figures(folder, stream):
     """The record's figures, from whatever the flight logged; a flight that logged nothing to
     draw is said so, not a traceback."""
@@ -312,8 +303,8 @@ def main(args):
         try:
             return _main(args)
         except KeyboardInterrupt as exc:  # before the flight could answer it: nothing flew
-            print(f"\nmavadrc fly: {_interrupted_word(exc)}: nothing flew", file=sys.stderr)
-            return _interrupt_status(exc)
+            print(f"\nmavadrc fly: {interrupt_word(exc)}: nothing flew", file=sys.stderr)
+            return interrupt_exit_status(exc)
 
 
 def _main(args):
