@@ -50,11 +50,24 @@ BOUNDS = {  # max 3-D error after the settling window (m)
 }
 
 
+@pytest.fixture(scope="module")
+def shipped_flight(tmp_path_factory):
+    """Fly a shipped mission with one controller once per module: (summary, folder)."""
+    flown = {}
+
+    def flight(name, kind):
+        if (name, kind) not in flown:
+            out = tmp_path_factory.mktemp(f"{name}-{kind}")
+            flown[name, kind] = fly_quiet(load_mission(MISSIONS / f"{name}.yaml"), out, kind=kind)
+        return flown[name, kind]
+
+    return flight
+
+
 @pytest.mark.parametrize("name", sorted(BOUNDS))
 @pytest.mark.parametrize("kind", ["ladrc", "adrc", "pd"])
-def test_each_controller_flies_each_mission_within_bounds(name, kind, tmp_path):
-    mission = load_mission(MISSIONS / f"{name}.yaml")
-    summary, folder = fly_quiet(mission, tmp_path, kind=kind)
+def test_each_controller_flies_each_mission_within_bounds(name, kind, shipped_flight):
+    summary, folder = shipped_flight(name, kind)
     assert summary["landed"] and summary["aborted"] == []
     assert summary["touchdown_speed_mps"] < 0.5
     err = summary.get("after_settle", summary)
@@ -66,10 +79,9 @@ def test_each_controller_flies_each_mission_within_bounds(name, kind, tmp_path):
         assert key in json.loads((folder / "summary.json").read_text())
 
 
-def test_adrc_rejects_the_wind_better_than_pd(tmp_path):
-    mission = load_mission(MISSIONS / "thesis_spiral_wind.yaml")
-    lad, _ = fly_quiet(mission, tmp_path, kind="ladrc")
-    pd, _ = fly_quiet(mission, tmp_path, kind="pd")
+def test_adrc_rejects_the_wind_better_than_pd(shipped_flight):
+    lad, _ = shipped_flight("thesis_spiral_wind", "ladrc")
+    pd, _ = shipped_flight("thesis_spiral_wind", "pd")
     assert lad["after_settle"]["rms_error_m"] * 3 < pd["after_settle"]["rms_error_m"]
 
 
