@@ -75,6 +75,9 @@ class EmbeddedVehicle:
             cmd += ["--lockstep", "--lockstep-rate", str(rate_hz)]
         if mission.noise:
             cmd += ["--noise"]
+        if mission.wander:
+            cmd += ["--wander", repr(mission.wander),
+                    "--wander-corner", repr(mission.wander_corner_hz)]
         if mission.sensor_latency_s:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
         if mission.height_drift_mps:

@@ -107,12 +107,12 @@ class Scenario:
     @functools.cached_property
     def random(self):
         """True when the seed changes this scenario's runs: its wind draws random numbers
-        (Dryden turbulence), it flies with sensor noise, its link draws loss or jitter, or its
+        (Dryden turbulence), it flies with sensor noise or a wander, its link draws loss or jitter, or its
         initial heading is drawn (``heading_deg: random``).
         Otherwise every seed flies the same run, and an experiment flies it once
         (:func:`mavadrc.compare.run_matrix`)."""
         m = self.mission
-        if m.noise or math.isnan(m.heading_deg):
+        if m.noise or m.wander or math.isnan(m.heading_deg):
             return True
         if m.link is not None and any(w.loss > 0.0 or w.jitter_s > 0.0
                                       for w in (m.link.down, m.link.up)):

@@ -215,6 +215,7 @@ def run_context(mission, kind, connect, lockstep):
                       wind=str(wind) if isinstance(wind, Path) else wind,
                       autopilot=mission.autopilot,
                       attitude_controller=mission.attitude_controller, noise=mission.noise,
+                      wander=mission.wander, wander_corner_hz=mission.wander_corner_hz,
                       sensor_latency_s=mission.sensor_latency_s,
                       height_drift_mps=mission.height_drift_mps,
                       link=None if mission.link is None else mission.link.as_dict(),

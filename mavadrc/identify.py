@@ -438,8 +438,9 @@ def identify_inprocess(mission, seed=None):
     seed = m.seed if seed is None else seed
     link = m.link
     key = (repr(m.vehicle), m.autopilot, m.attitude_controller, m.controller.rate_hz,
-           m.controller.tilt_max_deg, m.hover_thrust, m.noise, m.sensor_latency_s,
-           repr(link), m.heading_deg, seed if (m.noise or link is not None) else None)
+           m.controller.tilt_max_deg, m.hover_thrust, m.noise, m.wander, m.wander_corner_hz,
+           m.sensor_latency_s, repr(link), m.heading_deg,
+           seed if (m.noise or m.wander or link is not None) else None)
     if key not in _CACHE:
         run = fly_inprocess(m, seed=seed)
         L = run.log

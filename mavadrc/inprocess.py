@@ -386,8 +386,11 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                "thrust_model_factor":
                    personality(mission.autopilot).default_thrust_model_factor(),
                **dict(vehicle_options or {})}
-    if mission.noise:  # the server's --noise; its latency is the lag below
-        options.setdefault("sensors", {"noise": TYPICAL_NOISE})
+    if mission.noise or mission.wander:  # the server's --noise, --wander; its latency is the
+        # lag below
+        options.setdefault("sensors", {"noise": TYPICAL_NOISE if mission.noise else {},
+                                       "wander": mission.wander,
+                                       "wander_corner_hz": mission.wander_corner_hz})
     told = _vehicle_params(mission.vehicle or "crazyflie")  # the file: what the companion knows
     flown = vehicle_variant(told, mass_scale=mission.mass_scale,
                             motor_thrust_curve=mission.motor_thrust_curve,

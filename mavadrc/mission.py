@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.sensors import WANDER_CORNER_HZ
 from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
 
 from . import trajectories as T
@@ -88,6 +89,10 @@ class Mission:
     autopilot: str = "px4"  # personality of the bundled vehicle
     attitude_controller: str = "px4"  # the bundled vehicle's own inner loop
     noise: bool = False
+    #: m: the bundled vehicle's position estimate wanders this much (RMS per axis, as PX4 SIH's
+    #: EKF2 does: :class:`sim.sensors.Sensors`); 0: it does not
+    wander: float = 0.0
+    wander_corner_hz: float = WANDER_CORNER_HZ
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
     height_drift_mps: float = 0.0  # the bundled vehicle's height estimate drifts up (m/s)
     link: object = None  # sim.link_model.LinkModel between the bundled vehicle and the companion
@@ -661,6 +666,8 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.attitude_controller = s.string("attitude_controller", "px4",
                                          choices=("px4", "ladrc", "adrc", "pd"))
         m.noise = s.boolean("noise", False)
+        m.wander = s.number("wander", 0.0, ge=0.0, le=1.0)
+        m.wander_corner_hz = s.number("wander_corner_hz", WANDER_CORNER_HZ, ge=0.01, le=5.0)
         m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
         m.height_drift_mps = s.number("height_drift_mps", 0.0, ge=-0.5, le=0.5)
         if s.has("link"):

@@ -9,7 +9,7 @@ import threading
 
 from .link_flags import add_link_arguments, link_from_args
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
-from .sensors import TYPICAL_NOISE
+from .sensors import TYPICAL_NOISE, WANDER_CORNER_HZ
 from .server import SitlServer
 
 
@@ -37,6 +37,11 @@ def add_arguments(p):
                    help="file with the 32-byte MAVLink 2 signing secret as 64 hex characters")
     p.add_argument("--noise", action="store_true",
                    help="report position/velocity/attitude/rates with typical sensor noise")
+    p.add_argument("--wander", type=float, default=0.0, metavar="M",
+                   help="the reported position estimate wanders this much (RMS per axis, m), "
+                        "slowly, as PX4 SIH's EKF2 does (0.05-0.08 m there; default 0: not)")
+    p.add_argument("--wander-corner", type=float, default=WANDER_CORNER_HZ, metavar="HZ",
+                   help=f"the wander's corner frequency (default {WANDER_CORNER_HZ:g} Hz)")
     p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
     p.add_argument("--height-drift", type=float, default=0.0, metavar="M/S",
                    help="the reported height estimate drifts up this fast (a barometer's drift; "
@@ -219,8 +224,13 @@ def make_servers(args):
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
-    if args.noise or args.latency > 0.0:
-        sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency}
+    if not (math.isfinite(args.wander) and 0.0 <= args.wander <= 1.0):
+        raise SystemExit(f"--wander must be 0 to 1 m (got {args.wander!r})")
+    if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
+        raise SystemExit(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
+    if args.noise or args.latency > 0.0 or args.wander > 0.0:
+        sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency,
+                   "wander": args.wander, "wander_corner_hz": args.wander_corner}
     key = read_signing_key(args.signing_key) if args.signing_key else None
     servers = []
     try:

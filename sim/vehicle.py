@@ -300,7 +300,10 @@ class SimVehicle:
         self._estimate = self._report = None
         if sensors is not None:
             # the firmware flies on the noisy estimate at once; the latency is the report path's
-            self._estimate = Sensors(noise=sensors.noise, seed=sensor_seed)
+            self._estimate = Sensors(noise=sensors.noise, seed=sensor_seed,
+                                     wander=sensors.wander,
+                                     wander_corner_hz=sensors.wander_corner_hz,
+                                     dt=self.physics_dt)
             if sensors.latency_s > 0.0:
                 self._report = Sensors(latency_s=sensors.latency_s)
         self.fw = Firmware(vp, attitude_controller=attitude_controller,
@@ -451,7 +454,7 @@ class SimVehicle:
         noise is taken now from the sensor model's own stream (:meth:`sim.sensors.Sensors.draws`),
         so it goes on where the vehicle's steps left it.  The sensor latency is the caller's to
         model.  Without noise: (the true state itself, no rows, zero sigmas)."""
-        if self._estimate is None or not any(v > 0.0 for v in self._estimate.noise.values()):
+        if self._estimate is None or not self._estimate.active:
             return self._x, np.zeros((0, NNOISE)), np.zeros(4)
         self._measure()
         self._estimate_outside = True  # ran() takes the estimate as of its tick
