@@ -221,13 +221,13 @@ def make_servers(args):
         raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
     if not math.isfinite(args.height_drift) or abs(args.height_drift) > 0.5:
         raise SystemExit(f"--height-drift must be -0.5 to 0.5 m/s (got {args.height_drift!r})")
-    check_ports(args)
-    warm_up(args.vehicle, args.wind, args.attitude_controller)
-    sensors = None
     if not (math.isfinite(args.wander) and 0.0 <= args.wander <= 1.0):
         raise SystemExit(f"--wander must be 0 to 1 m (got {args.wander!r})")
     if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
         raise SystemExit(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
+    check_ports(args)
+    warm_up(args.vehicle, args.wind, args.attitude_controller)
+    sensors = None
     if args.noise or args.latency > 0.0 or args.wander > 0.0:
         sensors = {"noise": NOISE if args.noise else {}, "latency_s": args.latency,
                    "wander": args.wander, "wander_corner_hz": args.wander_corner}

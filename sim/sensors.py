@@ -32,17 +32,21 @@ N_VEL = 3  # 3: velocity (m/s)
 N_W = 6  # 3: body rates (rad/s)
 N_ATT = 9  # 3: attitude, a body-frame rotation vector (rad)
 NNOISE = 12
+#: steps of the wander computed at a time (:meth:`Sensors._wander_rows`)
+_WANDER_CHUNK = 1024
 
 
 @functools.lru_cache(maxsize=16)
 def _wander_filter(corner_hz, dt):
-    """(b, a, gain) of the wander's discrete second-order Butterworth low-pass at step ``dt``:
-    gain is the RMS of its output per unit of white input (the impulse response's energy)."""
+    """(b, a, gain, rate_gain) of the wander's discrete second-order Butterworth low-pass at
+    step ``dt``: gain is the RMS of its output per unit of white input (the impulse response's
+    energy), rate_gain that of the output's rate (the velocity it puts in the estimate)."""
     from scipy.signal import butter, lfilter  # here: scipy.signal is slow to import
     b, a = butter(2, corner_hz, fs=1.0 / dt)
     n = int(math.ceil(40.0 / (corner_hz * dt)))  # the response has died out well before
     impulse = lfilter(b, a, np.r_[1.0, np.zeros(n)])
-    return b, a, float(np.sqrt(np.sum(impulse * impulse)))
+    rate = np.diff(np.r_[0.0, impulse]) / dt
+    return b, a, float(np.sqrt(np.sum(impulse * impulse))), float(np.sqrt(np.sum(rate * rate)))
 
 
 def wander_band_rms(sigma, corner_hz, f_lo, f_hi):
@@ -112,12 +116,12 @@ class Sensors:
         if self.wander > 0.0:
             self._wander_rng = np.random.default_rng(
                 None if seed is None else [int(seed), 0x57414E44])  # "WAND": its own stream
-            b, a, _ = _wander_filter(self.wander_corner_hz, self.dt)
+            b, a, _, _ = _wander_filter(self.wander_corner_hz, self.dt)
             self._wander_zi = np.zeros((3, max(len(a), len(b)) - 1))
             self._wander_last = np.zeros(3)
             # start where it would be after running for long: 20 of its time constants
-            warm = int(math.ceil(20.0 / (self.wander_corner_hz * self.dt)))
-            self._wander_rows(warm)
+            self._wander_fill(int(math.ceil(20.0 / (self.wander_corner_hz * self.dt))))
+            self._wander_at = self._wander_buf.shape[0]  # the warm-up is not read
 
     @property
     def active(self) -> bool:
@@ -125,34 +129,47 @@ class Sensors:
         return self.wander > 0.0 or any(v > 0.0 for v in self.noise.values())
 
     def _wander_rows(self, n: int):
-        """The wander's next ``n`` steps: (position (n, 3) m, velocity (n, 3) m/s)."""
+        """The wander's next ``n`` steps: (position (n, 3) m, velocity (n, 3) m/s), taken from
+        a buffer filled :data:`_WANDER_CHUNK` steps at a time (the filter steps the same way
+        whatever the chunks, so the numbers are those of stepping it one by one)."""
+        n = int(n)
+        pos = np.empty((n, 3))
+        vel = np.empty((n, 3))
+        done = 0
+        while done < n:
+            if self._wander_at >= self._wander_buf.shape[0]:
+                self._wander_fill(max(_WANDER_CHUNK, n - done))
+            k = min(n - done, self._wander_buf.shape[0] - self._wander_at)
+            rows = self._wander_buf[self._wander_at:self._wander_at + k]
+            pos[done:done + k] = rows[:, 0:3]
+            vel[done:done + k] = rows[:, 3:6]
+            self._wander_at += k
+            done += k
+        return pos, vel
+
+    def _wander_fill(self, n: int):
+        """Step the wander's filter ``n`` steps into the buffer (position, velocity columns)."""
         from scipy.signal import lfilter
 
-        b, a, gain = _wander_filter(self.wander_corner_hz, self.dt)
+        b, a, gain, _ = _wander_filter(self.wander_corner_hz, self.dt)
         # step by step, three at a time: drawn ahead or one by one, the same numbers
-        w = self._wander_rng.standard_normal((int(n), 3)).T * (self.wander / gain)
-        pos = np.empty((int(n), 3))
-        vel = np.empty((int(n), 3))
+        w = self._wander_rng.standard_normal((n, 3)).T * (self.wander / gain)
+        buf = np.empty((n, 6))
         for i in range(3):
             p, self._wander_zi[i] = lfilter(b, a, w[i], zi=self._wander_zi[i])
-            pos[:, i] = p
-            if n:
-                vel[0, i] = (p[0] - self._wander_last[i]) / self.dt
-                vel[1:, i] = np.diff(p) / self.dt
-                self._wander_last[i] = p[-1]
-        return pos, vel
+            buf[:, i] = p
+            buf[0, 3 + i] = (p[0] - self._wander_last[i]) / self.dt
+            buf[1:, 3 + i] = np.diff(p) / self.dt
+            self._wander_last[i] = p[-1]
+        self._wander_buf = buf
+        self._wander_at = 0
 
     def wander_velocity_rms(self) -> float:
         """m/s: the RMS of the wander's velocity error per axis (0 without a wander)."""
         if self.wander <= 0.0:
             return 0.0
-        from scipy.signal import lfilter
-
-        b, a, gain = _wander_filter(self.wander_corner_hz, self.dt)
-        n = int(math.ceil(40.0 / (self.wander_corner_hz * self.dt)))
-        h = lfilter(b, a, np.r_[1.0, np.zeros(n)])
-        dh = np.diff(np.r_[0.0, h]) / self.dt
-        return float(self.wander / gain * np.sqrt(np.sum(dh * dh)))
+        _, _, gain, rate_gain = _wander_filter(self.wander_corner_hz, self.dt)
+        return self.wander / gain * rate_gain
 
     def _push(self, t: float, x: np.ndarray) -> None:
         cap = self._times.shape[0]

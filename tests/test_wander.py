@@ -88,7 +88,8 @@ def test_the_server_refuses_a_bad_wander_in_one_line():
     import subprocess
     import sys
 
-    p = subprocess.run([sys.executable, "-m", "sim", "--wander", "2", "--duration", "1"],
+    p = subprocess.run([sys.executable, "-m", "sim", "--wander", "2", "--duration", "1",
+                        "--bind-offboard", "0", "--bind-gcs", "0"],
                        capture_output=True, text=True, timeout=120)
     assert p.returncode != 0 and "--wander must be 0 to 1 m (got 2.0)" in p.stderr
     assert "Traceback" not in p.stderr
