@@ -99,8 +99,34 @@ def _sitl_process(*extra):
     return proc, port
 
 
+def _realtime_load(mavutil, seconds, *extra):
+    """(clock error %, CPU % of a core) of the bundled vehicle serving in real time for
+    ``seconds`` with the server options ``extra``."""
+    proc, port = _sitl_process(*extra)
+    try:
+        c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+        c.wait_heartbeat(timeout=30)
+        first = c.recv_match(type="ATTITUDE", blocking=True, timeout=30)
+        wall0, boot0, cpu0 = time.monotonic(), first.time_boot_ms, _cpu_seconds(proc.pid)
+        last = first
+        while time.monotonic() - wall0 < seconds:
+            m = c.recv_match(type="ATTITUDE", blocking=True, timeout=1)
+            if m is not None:
+                last, wall1 = m, time.monotonic()
+        cpu1 = _cpu_seconds(proc.pid)
+        wall = wall1 - wall0
+        c.close()
+        return (abs((last.time_boot_ms - boot0) / 1e3 - wall) / wall * 100,
+                (cpu1 - cpu0) / wall * 100)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
 def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
-    """Real-time clock accuracy and CPU load of the bundled vehicle, and a lockstep closed loop.
+    """Real-time clock accuracy and CPU load of the bundled vehicle (also with sensor noise and
+    a wandering estimate, whose draws it makes at every physics step), and a lockstep closed
+    loop.
 
     Both run the vehicle as its own process (``python -m sim``) and talk to it over loopback
     MAVLink with pymavlink, as a user's script would.
@@ -110,25 +136,14 @@ def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
     from pymavlink import mavutil
 
     fig = {}
-    proc, port = _sitl_process()
-    try:
-        c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
-        c.wait_heartbeat(timeout=30)
-        first = c.recv_match(type="ATTITUDE", blocking=True, timeout=30)
-        wall0, boot0, cpu0 = time.monotonic(), first.time_boot_ms, _cpu_seconds(proc.pid)
-        last = first
-        while time.monotonic() - wall0 < realtime_seconds:
-            m = c.recv_match(type="ATTITUDE", blocking=True, timeout=1)
-            if m is not None:
-                last, wall1 = m, time.monotonic()
-        cpu1 = _cpu_seconds(proc.pid)
-        wall = wall1 - wall0
-        fig["sitl_realtime_clock_error_pct"] = abs((last.time_boot_ms - boot0) / 1e3 - wall) / wall * 100
-        fig["sitl_realtime_cpu_pct_of_core"] = (cpu1 - cpu0) / wall * 100
-        c.close()
-    finally:
-        proc.terminate()
-        proc.wait(10)
+    err, cpu = _realtime_load(mavutil, realtime_seconds)
+    fig["sitl_realtime_clock_error_pct"] = err
+    fig["sitl_realtime_cpu_pct_of_core"] = cpu
+    err, cpu = _realtime_load(mavutil, realtime_seconds, "--noise", "--wander", "0.06")
+    fig["sitl_realtime_wander_clock_error_pct"] = err
+    fig["sitl_realtime_wander_cpu_pct_of_core"] = cpu
+    fig["ratio_sitl_realtime_cpu_wander_over_plain"] = \
+        cpu / max(fig["sitl_realtime_cpu_pct_of_core"], 1e-9)
 
     proc, port = _sitl_process("--lockstep", "--lockstep-rate", "100")
     try:

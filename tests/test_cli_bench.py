@@ -46,6 +46,8 @@ def test_bench_says_a_peer_is_not_installed_and_how_to_install_it(monkeypatch):
 def test_sitl_figures_measure_a_running_vehicle():
     fig = sitl_figures(realtime_seconds=2.0, lockstep_seconds=1.0)
     assert set(fig) == {"sitl_realtime_clock_error_pct", "sitl_realtime_cpu_pct_of_core",
-                        "sitl_lockstep_x_realtime"}
+                        "sitl_realtime_wander_clock_error_pct",
+                        "sitl_realtime_wander_cpu_pct_of_core",
+                        "ratio_sitl_realtime_cpu_wander_over_plain", "sitl_lockstep_x_realtime"}
     assert all(math.isfinite(v) and v >= 0.0 for v in fig.values())
     assert fig["sitl_lockstep_x_realtime"] > 1.0  # lockstep is not tied to the wall clock
