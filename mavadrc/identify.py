@@ -506,7 +506,7 @@ def design_lag(mission):
     import dataclasses
     if mission.vehicle is None:
         return None
-    m = dataclasses.replace(mission, link=None, sensor_latency_s=0.0, noise=False)
+    m = dataclasses.replace(mission, link=None, sensor_latency_s=0.0, noise=False, wander=0.0)
     rec = identify_inprocess(m, 0)
     if "input_lag" not in rec or unidentified_axes(rec):
         return None

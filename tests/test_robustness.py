@@ -215,6 +215,8 @@ def test_the_robustness_experiment_loads_with_every_knob():
     assert {sc.mission.mass_scale for sc in scs} >= {0.7, 1.3}
     assert any(sc.mission.motor_thrust_curve for sc in scs)
     assert any(sc.mission.attitude_bandwidth_scale < 1.0 for sc in scs)
+    assert {sc.mission.wander for sc in scs} >= {0.0, 0.03, 0.06, 0.1}
+    assert all(sc.random for sc in scs if sc.mission.wander)  # each seed meets its own wander
     assert {sc.mission.vehicle for sc in scs} == {"crazyflie", "x500"}
     assert len(exp.runs()) <= 300  # the 5-minute budget on 2 cores
 

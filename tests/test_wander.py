@@ -93,3 +93,28 @@ def test_the_server_refuses_a_bad_wander_in_one_line():
                        capture_output=True, text=True, timeout=120)
     assert p.returncode != 0 and "--wander must be 0 to 1 m (got 2.0)" in p.stderr
     assert "Traceback" not in p.stderr
+
+
+def test_the_spiral_on_a_wandering_px4_sih_meets_px4_sihs_floor():
+    """configs/experiments/estimate_wander.yaml, three seeds: PX4 SIH's wander (60 mm) costs
+    the spiral 0.03-0.04 m on the bundled PX4 SIH quad, and leaves it where PX4 SIH flew it
+    (measured with six seeds: 0.186 +- 0.013 at the 35 deg tilt limit, 0.140 +- 0.015 at 45;
+    PX4 SIH flown 0.10-0.21 and 0.10-0.15): the wider limit is worth 0.04 m, and neither comes
+    near 0.1 (README, "The floor, reproduced")."""
+    from pathlib import Path
+
+    from mavadrc.experiment import load_experiment, run_inprocess
+    exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
+                          / "estimate_wander.yaml")
+    names = [s.name for s in exp.scenarios]
+    ctrls = [c.name for c in exp.controllers]
+    got = {}
+    for sc in ("white noise only", "wander 60 mm (PX4 SIH's)"):
+        for c in ("wc 2.1 tilt 35", "wc 2.1 tilt 45"):
+            got[sc, c] = np.mean([run_inprocess(exp, names.index(sc), ctrls.index(c), seed)[0]
+                                  ["after_settle"]["max_error_m"] for seed in range(3)])
+    for c in ("wc 2.1 tilt 35", "wc 2.1 tilt 45"):
+        assert got["wander 60 mm (PX4 SIH's)", c] > got["white noise only", c] + 0.015, got
+    wandering = got["wander 60 mm (PX4 SIH's)", "wc 2.1 tilt 45"]
+    assert 0.11 < wandering < 0.17, got
+    assert got["wander 60 mm (PX4 SIH's)", "wc 2.1 tilt 35"] > wandering + 0.02, got
