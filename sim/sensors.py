@@ -231,7 +231,7 @@ class Sensors:
             y = np.array(x, dtype=float)
         n = self.noise
         # each component's noise summed before it is added, as draws sums it for measure_into
-        dpos, dvel = np.zeros(3), np.zeros(3)
+        dpos = dvel = None
         if n["position"] > 0:
             dpos = n["position"] * self._rng.standard_normal(3)
         if n["velocity"] > 0:
@@ -243,11 +243,11 @@ class Sensors:
             perturb(q, n["attitude"] * self._rng.standard_normal(3), y[IX_Q:IX_Q + 4])
         if self.wander > 0.0:
             pos, vel = self._wander_rows(1)
-            dpos = dpos + pos[0]
-            dvel = dvel + vel[0]
-        if n["position"] > 0 or self.wander > 0.0:
+            dpos = pos[0] if dpos is None else dpos + pos[0]
+            dvel = vel[0] if dvel is None else dvel + vel[0]
+        if dpos is not None:
             y[IX_POS:IX_POS + 3] += dpos
-        if n["velocity"] > 0 or self.wander > 0.0:
+        if dvel is not None:
             y[IX_VEL:IX_VEL + 3] += dvel
         return y
 
