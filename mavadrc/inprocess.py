@@ -386,8 +386,7 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
                "thrust_model_factor":
                    personality(mission.autopilot).default_thrust_model_factor(),
                **dict(vehicle_options or {})}
-    if mission.noise or mission.wander:  # the server's --noise, --wander; its latency is the
-        # lag below
+    if mission.noise or mission.wander:  # the server's --noise and --wander (latency: below)
         options.setdefault("sensors", {"noise": TYPICAL_NOISE if mission.noise else {},
                                        "wander": mission.wander,
                                        "wander_corner_hz": mission.wander_corner_hz})

@@ -103,6 +103,12 @@ class Sensors:
         self.wander_corner_hz = float(wander_corner_hz)
         self.dt = float(dt)
         self.latency_s = float(latency_s)
+        n = self.noise
+        #: the white noise's sigmas in draws' column order, and with the wander's (sigmas())
+        self._white = np.array([n["position"], n["velocity"], n["rates"], n["attitude"]])
+        self._sigmas = np.array([math.hypot(n["position"], self.wander),
+                                 math.hypot(n["velocity"], self.wander_velocity_rms()),
+                                 n["rates"], n["attitude"]])
         self._times = np.empty(64)
         self._states = np.empty((64, NX))
         self.reset(seed)
@@ -197,10 +203,7 @@ class Sensors:
         """[position, velocity, rates, attitude] standard deviations, in the order of the
         columns of :meth:`draws` (for :func:`measure_into`); position and velocity with the
         wander's."""
-        n = self.noise
-        wv = self.wander_velocity_rms()
-        return np.array([math.hypot(n["position"], self.wander), math.hypot(n["velocity"], wv),
-                         n["rates"], n["attitude"]])
+        return self._sigmas.copy()
 
     def draws(self, n: int) -> np.ndarray:
         """The noise of the next ``n`` calls of :meth:`measure`, taken from its stream now:
@@ -208,8 +211,7 @@ class Sensors:
         measure would draw (zero where the sigma is 0, which draws nothing).  Drawing these and
         applying them with :func:`measure_into` leaves the stream and the readings as ``n``
         calls of measure would (for compiled loops that step tick by tick)."""
-        nz = self.noise
-        sig = np.array([nz["position"], nz["velocity"], nz["rates"], nz["attitude"]])
+        sig = self._white
         on = np.nonzero(sig > 0.0)[0]
         out = np.zeros((int(n), NNOISE))
         if on.size:
@@ -242,9 +244,12 @@ class Sensors:
             q = y[IX_Q:IX_Q + 4].copy()
             perturb(q, n["attitude"] * self._rng.standard_normal(3), y[IX_Q:IX_Q + 4])
         if self.wander > 0.0:
-            pos, vel = self._wander_rows(1)
-            dpos = pos[0] if dpos is None else dpos + pos[0]
-            dvel = vel[0] if dvel is None else dvel + vel[0]
+            if self._wander_at >= self._wander_buf.shape[0]:
+                self._wander_fill(_WANDER_CHUNK)
+            row = self._wander_buf[self._wander_at]  # this step's (position, velocity)
+            self._wander_at += 1
+            dpos = row[0:3] if dpos is None else dpos + row[0:3]
+            dvel = row[3:6] if dvel is None else dvel + row[3:6]
         if dpos is not None:
             y[IX_POS:IX_POS + 3] += dpos
         if dvel is not None:
