@@ -1,6 +1,11 @@
 """Test-session setup shared by every test file."""
 
+import os
 import signal
+
+# MAVLink 2 before any test module imports pymavlink (which picks its dialect once, on import),
+# whatever order a file's imports come in
+os.environ.setdefault("MAVLINK20", "1")
 
 # The Ctrl-C tests send SIGINT to a command they started, as a terminal does.  A shell starts a
 # background job (`pytest ... &` with no job control, as CI scripts often do) with SIGINT

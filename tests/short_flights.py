@@ -1,0 +1,48 @@
+"""The short hover the companion's fault tests fly, and how they fly it: over MAVLink against the
+bundled vehicle, through the lossy-link proxy of ``lossy_link.py``, in real time."""
+
+import io
+
+from lossy_link import start_lossy_vehicle
+
+from mavadrc.fly import fly
+from mavadrc.mission import load_mission
+
+
+SHORT = """name: short hover
+vehicle: crazyflie
+controller: {type: ladrc, rate_hz: 100, input_lag: [0.13, 0.13, 0.05]}  # the Crazyflie's response
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 1.0}
+  - hover: {duration: HOVER}
+  - land: {speed: 0.6}
+wind: breeze_1ms
+safety: {geofence: {north: [-5, 5], east: [-5, 5]}, altitude: {max: 5}}
+"""
+#: the bundled PX4 without its spool-up wait, to keep real-time tests short
+FAST_PX4 = {"COM_SPOOLUP_TIME": 0.0}
+
+
+def short_mission(tmp_path, hover=3, extra=""):
+    path = tmp_path / f"short{hover}.yaml"
+    path.write_text(SHORT.replace("HOVER", str(hover)) + extra)
+    return load_mission(path)
+
+
+def fly_through(link, mission, tmp_path, **kw):
+    out = io.StringIO()
+    kw.setdefault("timeout", 90.0)
+    summary, folder = fly(mission, connect=link.companion_url, out=tmp_path / "runs",
+                          figures=False, progress=False, stream=out, **kw)
+    return summary, folder, out.getvalue()
+
+
+def lossy_vehicle(**kw):
+    kw.setdefault("wind", "breeze_1ms")
+    kw.setdefault("params", dict(FAST_PX4))
+    return start_lossy_vehicle(**kw)
+
+
+def stop(srv, link):
+    link.stop(check=False)
+    srv.stop()
