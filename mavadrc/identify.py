@@ -38,7 +38,6 @@ fit.  ``mavadrc identify`` flies only this and writes the result as a controller
 import math
 
 import numpy as np
-from scipy import optimize, signal
 
 from .control.position import LAG63
 
@@ -137,10 +136,12 @@ class _AxisFit:
         """(sse, k, v0, b, c) of the velocity fit for lag ``tau`` and dead time ``d``."""
         if d != self._held_d:  # the search runs every lag at one dead time before the next
             self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
+        from scipy.signal import lfilter  # here: scipy.signal takes ~1 s to import, and
+        # every flight imports this module, most of them without fitting anything
         y = self._held
         alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
         for _ in range(ORDER):
-            y, _ = signal.lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
+            y, _ = lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
         # the modelled velocity change since the window began
         w = np.cumsum(y) * FINE_S
         w = w[self.at] - w[self.i0]
@@ -172,11 +173,12 @@ class _AxisFit:
         if d != self._leg_d:
             self._leg_d = d
             self._leg_held = [_shifted_hold(self.t, self.u, g, d) for g, _ in self.leg]
+        from scipy.signal import lfilter
         alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
         means = []
         for (_, i0), y in zip(self.leg, self._leg_held):
             for _ in range(ORDER):
-                y, _ = signal.lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
+                y, _ = lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
             means.append(float(y[i0:].mean()))
         return (means[0] - means[1]) / self.leg_dv
 
@@ -200,7 +202,8 @@ def _search(fits):
             return math.inf
         return total(tau, d)
 
-    res = optimize.minimize(cost, [best[1], best[2]], method="Nelder-Mead",
+    from scipy.optimize import minimize
+    res = minimize(cost, [best[1], best[2]], method="Nelder-Mead",
                             options={"xatol": 2e-4, "fatol": 1e-12, "maxiter": 400})
     return tuple(float(x) for x in res.x) if res.fun <= best[0] else (best[1], best[2])
 
