@@ -183,6 +183,16 @@ class _AxisFit:
         return (means[0] - means[1]) / self.leg_dv
 
 
+def load_fitting():
+    """Import what a fit uses (scipy.signal and scipy.optimize, about a second) now.  A flight
+    that will identify calls this before it flies: the fit runs in a thread beside the control
+    loop, and an import there would hold the interpreter for the loop's steps."""
+    import importlib
+
+    for name in ("scipy.optimize", "scipy.signal"):
+        importlib.import_module(name)
+
+
 def _search(fits):
     """(tau, d) minimising the summed squared velocity residual of ``fits`` (each an
     :class:`_AxisFit`): a grid, then Nelder-Mead from its best point."""

@@ -9,6 +9,7 @@ achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rat
 import time
 
 
+from .identify import load_fitting
 from .link import FlightError, LinkError, M, result_name
 from .sequence import sequence_for
 from .truth import TRUTH_HZ, TruthTrack
@@ -34,6 +35,8 @@ class Preflight:
             self.say("compiling the controller's kernels (the first flight after an install or "
                      "an update; numba caches them: later flights start at once)")
         self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
+        if self._identifying():
+            load_fitting()
         timeout = self.heartbeat_timeout
         if self._deadline is not None:
             timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))

@@ -244,11 +244,15 @@ def test_in_turbulence_the_drifting_disturbance_keeps_the_fit(monkeypatch):
         assert rec["input_lag"][:2] == pytest.approx(calm[:2], rel=0.10), (seed, rec)
 
 
-def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsys):
+def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsys, monkeypatch):
     """End to end over MAVLink (the bundled vehicle in lockstep): take off, doublets on the
     safe gains, the fit, the observers' model switched to it in flight, landed; the file
     written is a controller section a mission takes, and the doublets' tilt is not reported as
-    a limit cycle."""
+    a limit cycle.  What the fit imports is loaded before the flight flies (in real time the
+    fit runs in a thread beside the loop)."""
+    import mavadrc.preflight as P
+    loaded = []
+    monkeypatch.setattr(P, "load_fitting", lambda: loaded.append(True) or I.load_fitting())
     out = tmp_path / "model.yaml"
     code = main(["identify", "--lockstep", "--out", str(tmp_path), "--write", str(out),
                  "--no-figures", "-q"])
@@ -273,6 +277,22 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     osc = summary.get("attitude_oscillation")
     assert osc is None or osc["amplitude_deg"] < 3.0
     assert not any("limit cycle" in w for w in summary["warnings"])
+    assert loaded == [True]
+
+
+def test_a_flight_starts_without_scipys_fitting_and_loads_it_only_to_identify():
+    """Importing the flight leaves scipy.signal and scipy.optimize (1.4 s of the 2.25 a start
+    took) unloaded; load_fitting loads them."""
+    import subprocess
+    import sys
+    code = ("import sys, mavadrc.fly\n"
+            "before = [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')]\n"
+            "from mavadrc.identify import load_fitting\n"
+            "load_fitting()\n"
+            "print(before, [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')])\n")
+    got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parent.parent, check=True).stdout.strip()
+    assert got == "[False, False] [True, True]", got
 
 
 def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
