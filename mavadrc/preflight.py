@@ -10,7 +10,7 @@ import time
 
 
 from .identify import load_fitting
-from .link import FlightError, LinkError, M, result_name
+from .link import TIMEOUT, FlightError, LinkError, M, result_name
 from .sequence import sequence_for
 from .truth import TRUTH_HZ, TruthTrack
 
@@ -20,6 +20,10 @@ MEASURE_S = 1.0
 RATE_OK = 0.9
 #: while waiting for the first heartbeat, a line every this many seconds
 HEARTBEAT_SAY_S = 5
+#: SET_MESSAGE_INTERVAL sent (0.5 s apart) before a stream is taken as unanswered; after one went
+#: unanswered, the next are sent this many times (eight unanswered on PX4's list took 20 s)
+STREAM_TRIES = 5
+STREAM_TRIES_UNANSWERED = 2
 
 
 class Preflight:
@@ -175,8 +179,12 @@ class Preflight:
             wanted.append((getattr(M, "MAVLINK_MSG_ID_" + truth), min(rate, TRUTH_HZ)))
             self.truth = TruthTrack(truth, table=self.rec.truth_table)
         self.streams = {}
+        tries = STREAM_TRIES
         for mid, hz in wanted:
-            result = self.link.set_rate(mid, hz)
+            result = self.link.set_rate(mid, hz, tries=tries)
+            # unanswered through every try: a vehicle (or a router) that ignores these is asked
+            # the rest fewer times; any answer restores the full count
+            tries = STREAM_TRIES_UNANSWERED if result == TIMEOUT else STREAM_TRIES
             name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
             self.streams[name] = result_name(result)
             if result != M.MAV_RESULT_ACCEPTED and hz > 0 and name != truth:

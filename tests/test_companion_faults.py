@@ -156,16 +156,23 @@ def test_lost_stream_requests_are_sent_again(tmp_path):
 
 def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
     """Every SET_MESSAGE_INTERVAL lost: the vehicle keeps its 30 Hz default; never a 100 Hz
-    law on 30 Hz samples in silence."""
+    law on 30 Hz samples in silence.  The first stream is asked STREAM_TRIES times; once it
+    went unanswered, each of the rest fewer (PX4's list of eight took 20 s asked five times
+    each)."""
+    from mavadrc.preflight import STREAM_TRIES, STREAM_TRIES_UNANSWERED
     srv, link = lossy_vehicle(link_seed=8)
-    link.drop_messages("COMMAND_LONG", direction="up", command=M.MAV_CMD_SET_MESSAGE_INTERVAL)
+    rule = link.drop_messages("COMMAND_LONG", direction="up",
+                              command=M.MAV_CMD_SET_MESSAGE_INTERVAL)
     try:
         summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
     finally:
         stop(srv, link)
     assert "not the 100 Hz asked" in text
     assert summary["rate_hz"] == pytest.approx(30.0, abs=1.5)
-    assert summary["streams"]["LOCAL_POSITION_NED"] == "no answer"
+    streams = summary["streams"]
+    assert set(streams.values()) == {"no answer"} and len(streams) >= 6, streams
+    assert STREAM_TRIES_UNANSWERED < STREAM_TRIES
+    assert rule.dropped == STREAM_TRIES + STREAM_TRIES_UNANSWERED * (len(streams) - 1)
     assert summary["landed"]
 
 
