@@ -61,6 +61,7 @@ def control_figures():
             lambda: pos_han.update(p, v, rp, rv, ra, 0.0)),
         "attitude_controller_ladrc_step_us": per_call_us(lambda: att.update(e, w, er)),
     }
+    fig.update(reference_figures())
     try:
         import pyadrc
     except ImportError:
@@ -78,6 +79,28 @@ def control_figures():
         fig["pyadrc_statespace_step_us"] = per_call_us(peer_call)
         fig["ratio_pyadrc_over_linear_adrc"] = (fig["pyadrc_statespace_step_us"]
                                                 / fig["linear_adrc_step_us"])
+    return fig
+
+
+def reference_figures():
+    """The reference a flight samples once to three times a step (the thesis spiral in wind's,
+    with its takeoff, transit and land): one time, against the many-times path's cost per
+    time over a whole flight's times, and against the LADRC step it feeds."""
+    from .mission import load_mission
+
+    traj, _ = load_mission("thesis_spiral_wind").build_trajectory(np.zeros(3))
+    ts = np.linspace(-1.0, traj.duration + 1.0, 2000)
+    i = [0]
+
+    def one():
+        i[0] = (i[0] + 1) % len(ts)
+        traj.sample(ts[i[0]])
+
+    fig = {"reference_sample_us": per_call_us(one),
+           "reference_sample_many_per_time_us": median_us(lambda: traj.sample_many(ts), 1, 25)
+           / len(ts)}
+    fig["ratio_reference_sample_over_sample_many_per_time"] = (
+        fig["reference_sample_us"] / fig["reference_sample_many_per_time_us"])
     return fig
 
 

@@ -123,6 +123,8 @@ def _yaw_mode(owner: str, yaw):
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
     """Wrap to [-pi, pi], leaving angles already inside untouched (so constants stay exact)."""
+    if angle.shape[0] == 1 and abs(float(angle[0])) <= math.pi:
+        return angle  # one sample, already inside: a flight's every step
     wrapped = np.mod(angle + math.pi, 2.0 * math.pi) - math.pi
     return np.where(np.abs(angle) <= math.pi, angle, wrapped)
 
@@ -169,6 +171,17 @@ class Trajectory:
         t = np.atleast_1d(np.asarray(t, dtype=float))
         if t.ndim != 1:
             raise ValueError(f"{type(self).__name__}: t must be a 1-D array, got shape {t.shape}")
+        if t.shape[0] == 1:  # one time (a flight samples one or three each step): in Python,
+            x = float(t[0])  # where numpy's checks on a 1-element array cost more than _eval
+            if not math.isfinite(x):
+                raise ValueError(f"{type(self).__name__}: t must be finite")
+            tc = t if 0.0 <= x <= self.duration else np.array([min(max(x, 0.0), self.duration)])
+            pos, vel, acc, yaw, yaw_rate = self._eval(tc)
+            if x > self.duration:
+                vel[:] = 0.0
+                acc[:] = 0.0
+                yaw_rate[:] = 0.0
+            return pos, vel, acc, _wrap(yaw), yaw_rate
         if not np.all(np.isfinite(t)):
             raise ValueError(f"{type(self).__name__}: t must be finite")
         tc = np.clip(t, 0.0, self.duration)
@@ -697,6 +710,9 @@ class Sequence(Trajectory):
         n = t.shape[0]
         last = len(self.parts) - 1
         idx = np.clip(np.searchsorted(self.start_times, t, side="right") - 1, 0, last)
+        if n == 1:  # one time: its part alone
+            k = int(idx[0])
+            return self.parts[k].sample_many(t - self.start_times[k])
         pos, vel, acc = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         yaw, yaw_rate = np.empty(n), np.empty(n)
         for k in np.unique(idx):

@@ -1,6 +1,7 @@
 """Reference trajectories: exact derivatives, geometry, thesis formulas, timing, validation."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,6 +103,30 @@ def test_sample_many_agrees_with_sample(name):
         np.testing.assert_array_equal(ref.vel, many[1][i])
         np.testing.assert_array_equal(ref.acc, many[2][i])
         assert ref.yaw == many[3][i] and ref.yaw_rate == many[4][i]
+
+
+SHIPPED = sorted(p.stem for p in (Path(__file__).resolve().parent.parent / "configs"
+                                   / "missions").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_a_shipped_missions_reference_is_the_same_one_time_at_a_time(name):
+    """A flight samples its reference one time at a time (a fast path of its own); every
+    shipped mission's reference, joins and the hold after its end included, is the one
+    sampled many times at once (to 1e-12: a transit's polynomial, a matrix product, rounds an
+    ulp differently for one row than for many)."""
+    from mavadrc.mission import load_mission
+    traj, phases = load_mission(Path(__file__).resolve().parent.parent / "configs" / "missions"
+                                / f"{name}.yaml").build_trajectory(np.array([1.0, -2.0, 0.0]))
+    joins = [t0 for t0, _ in phases]
+    t = np.concatenate([[-1.0], joins, np.nextafter(joins, -np.inf),
+                        np.random.default_rng(0).uniform(0.0, traj.duration, 300),
+                        [traj.duration, traj.duration + 3.0]])
+    many = traj.sample_many(t)
+    for i, ti in enumerate(t):
+        ref = traj.sample(float(ti))
+        for got, want in zip((ref.pos, ref.vel, ref.acc, ref.yaw, ref.yaw_rate), many):
+            np.testing.assert_allclose(got, want[i], rtol=0.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
