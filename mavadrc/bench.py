@@ -62,6 +62,8 @@ def control_figures():
         "attitude_controller_ladrc_step_us": per_call_us(lambda: att.update(e, w, er)),
     }
     fig.update(reference_figures())
+    fig["ratio_reference_sample_over_position_controller_ladrc_step"] = (
+        fig["reference_sample_us"] / fig["position_controller_ladrc_step_us"])
     try:
         import pyadrc
     except ImportError:
@@ -85,7 +87,8 @@ def control_figures():
 def reference_figures():
     """The reference a flight samples once to three times a step (the thesis spiral in wind's,
     with its takeoff, transit and land): one time, against the many-times path's cost per
-    time over a whole flight's times, and against the LADRC step it feeds."""
+    time over a whole flight's times (:func:`control_figures` sets it beside the LADRC step it
+    feeds)."""
     from .mission import load_mission
 
     traj, _ = load_mission("thesis_spiral_wind").build_trajectory(np.zeros(3))

@@ -136,8 +136,9 @@ class _AxisFit:
         """(sse, k, v0, b, c) of the velocity fit for lag ``tau`` and dead time ``d``."""
         if d != self._held_d:  # the search runs every lag at one dead time before the next
             self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
-        from scipy.signal import lfilter  # here: scipy.signal takes ~1 s to import, and
-        # every flight imports this module, most of them without fitting anything
+        # imported here, not with the module: every flight imports this module, most of them
+        # without fitting anything, and scipy.signal takes about a second (load_fitting)
+        from scipy.signal import lfilter
         y = self._held
         alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
         for _ in range(ORDER):
@@ -214,7 +215,7 @@ def _search(fits):
 
     from scipy.optimize import minimize
     res = minimize(cost, [best[1], best[2]], method="Nelder-Mead",
-                            options={"xatol": 2e-4, "fatol": 1e-12, "maxiter": 400})
+                   options={"xatol": 2e-4, "fatol": 1e-12, "maxiter": 400})
     return tuple(float(x) for x in res.x) if res.fun <= best[0] else (best[1], best[2])
 
 
