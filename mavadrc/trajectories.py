@@ -176,18 +176,15 @@ class Trajectory:
             if not math.isfinite(x):
                 raise ValueError(f"{type(self).__name__}: t must be finite")
             tc = t if 0.0 <= x <= self.duration else np.array([min(max(x, 0.0), self.duration)])
-            pos, vel, acc, yaw, yaw_rate = self._eval(tc)
-            if x > self.duration:
-                vel[:] = 0.0
-                acc[:] = 0.0
-                yaw_rate[:] = 0.0
-            return pos, vel, acc, _wrap(yaw), yaw_rate
-        if not np.all(np.isfinite(t)):
-            raise ValueError(f"{type(self).__name__}: t must be finite")
-        tc = np.clip(t, 0.0, self.duration)
+            after = slice(None) if x > self.duration else None
+        else:
+            if not np.all(np.isfinite(t)):
+                raise ValueError(f"{type(self).__name__}: t must be finite")
+            tc = np.clip(t, 0.0, self.duration)
+            after = t > self.duration
+            after = after if np.any(after) else None
         pos, vel, acc, yaw, yaw_rate = self._eval(tc)
-        after = t > self.duration
-        if np.any(after):
+        if after is not None:  # held after the end: at rest
             vel[after] = 0.0
             acc[after] = 0.0
             yaw_rate[after] = 0.0
