@@ -74,6 +74,9 @@ TIPPED_COS = math.cos(math.radians(45.0))
 #: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
 #: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
 LOCKSTEP_SPIN_S = 0.002
+#: lockstep: the least telemetry timeout (s); the vehicle waits on us, so a machine busy
+#: elsewhere slows the answer without any link being lost
+LOCKSTEP_STALE_S = 5.0
 #: wall time (s) for a mode or arming change to show in the heartbeat once accepted
 CONFIRM_S = 3.0
 #: the heading turns from the vehicle's to the mission's at this rate (rad/s): PX4's
@@ -447,7 +450,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         # compiling) is not a lost link; give it longer before calling telemetry stale
         sf = mission.safety
         self.supervisor = Supervisor(sf, sf.telemetry_timeout_s if not lockstep
-                                     else max(5.0, sf.telemetry_timeout_s))
+                                     else max(LOCKSTEP_STALE_S, sf.telemetry_timeout_s))
         self.seq = None
         self.texts = []
         self.phase = "connect"
@@ -510,6 +513,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._held_wall = 0.0
         self._last_sample_wall = None
         self._last_send_wall = 0.0
+        # lockstep: when we were done with the last sample (work after its setpoint, such as
+        # the identification's fit, holds the vehicle, which waits for the next setpoint)
+        self._handled_wall = 0.0
         self._hb_wall = 0.0
         self._kick_wall = 0.0
         self._last_named = -1.0
@@ -988,6 +994,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             self._last_sample_wall = now
             t_in = time.perf_counter()
             self._on_sample(s)
+            if self.lockstep:
+                self._handled_wall = time.monotonic()
             if self.phase in ("mission", "touchdown"):  # telemetry in -> setpoint out
                 self.latency.append(time.perf_counter() - t_in)
                 if s.age is not None:
@@ -1442,7 +1450,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 raise FlightError("no LOCAL_POSITION_NED from the vehicle within 5 s: does it "
                                   "have a position estimate?")
         elif self.phase in ("spoolup", "mission", "touchdown", "cut"):
-            why = self.supervisor.stale(now, self._last_sample_wall, self._last_send_wall)
+            why = self.supervisor.stale(now, self._last_sample_wall,
+                                        max(self._last_send_wall, self._handled_wall))
             if why is not None:
                 # level hover on the hover thrust, then the autopilot's land mode
                 self._send(self.last.t, level_quat(self.yaw), self.hover if self._lifted else 0.0,

@@ -99,10 +99,11 @@ class Supervisor:
             return f"speed limit breach at {speed:.1f} m/s"
         return None
 
-    def stale(self, now, last_sample_wall, last_send_wall):
-        """Telemetry stale past the timeout: counted from the last sample, or from our answer to
-        it if that took long (a lockstep vehicle cannot move on before our answer)."""
-        quiet = now - max(last_sample_wall, last_send_wall)
+    def stale(self, now, last_sample_wall, answered_wall):
+        """Telemetry stale past the timeout: counted from the last sample, or from when we were
+        done answering it if that took long (a lockstep vehicle cannot move on before our
+        answer, nor, in our loop, be heard while we still work on the last one)."""
+        quiet = now - max(last_sample_wall, answered_wall)
         if quiet > self.telemetry_timeout:
             return f"telemetry lost ({quiet:.2f} s without a sample)"
         return None

@@ -213,6 +213,30 @@ def test_a_two_second_blackout_ends_on_the_ground_disarmed(tmp_path):
     assert wait_until(lambda: srv.mode.name == "AUTO.LOITER", 3.0), srv.mode.name
 
 
+def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypatch):
+    """A lockstep vehicle waits for the next setpoint, so work the companion does after one (the
+    identification's fit, made at once in lockstep, took over 5 s on a loaded machine) holds the
+    samples back without any link being lost: the flight goes on and lands.  The timeout is
+    shortened to 0.5 s and one step after its setpoint is made to take 1.5 s."""
+    import mavadrc.flight as F
+    monkeypatch.setattr(F, "LOCKSTEP_STALE_S", 0.5)
+    slow = []
+    history = Flight._descent_history
+
+    def descent_history(self, s, final):
+        if not slow and s.t - self._mission_t0 > 2.0:
+            slow.append(s.t)
+            time.sleep(1.5)
+        return history(self, s, final)
+
+    monkeypatch.setattr(Flight, "_descent_history", descent_history)
+    summary, _ = fly(short_mission(tmp_path, hover=1), out=tmp_path, lockstep=True,
+                     figures=False, progress=False, stream=io.StringIO())
+    assert slow, "the slow step was not taken"
+    assert summary["landed"], summary["aborted"]
+    assert not summary["aborted"]
+
+
 # --- commands and their answers ------------------------------------------------------------------
 
 
