@@ -175,14 +175,20 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
 
 
 def stop_pool(pool):
-    """Stop a process pool now: the queued runs cancelled, the workers terminated."""
+    """Stop a process pool now: the queued runs cancelled, the workers terminated, and the
+    pool's manager thread waited for as it fails what was pending and closes its pipes (left
+    running, it raced the interpreter's exit, which writes to one of them: a traceback after
+    the one line, now and then, on a loaded machine)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     for proc in procs:
         if proc.is_alive():
             proc.terminate()
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         proc.join(5)
+    if manager is not None:
+        manager.join(5)
 
 
 def dask_client():

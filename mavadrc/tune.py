@@ -25,7 +25,7 @@ import numpy as np
 
 from sim.yamlio import choose, did_you_mean
 
-from .compare import default_workers, process_pool
+from .compare import default_workers, process_pool, stop_pool
 from .console import counted
 from .experiment import experiment_from_text, goal_covers, load_experiment, run_inprocess
 
@@ -208,8 +208,8 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
                                      tol=1e-3, polish=False, updating="deferred",
                                      workers=mapper, callback=report, init="sobol")
     except KeyboardInterrupt:
-        if pool is not None:  # the workers ignore SIGINT: drop what is queued, do not wait
-            pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:  # the workers ignore SIGINT: stopped, not waited for
+            stop_pool(pool)
             pool = None
         raise
     finally:
