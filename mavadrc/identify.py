@@ -39,6 +39,7 @@ import math
 
 import numpy as np
 
+from .control._jit import jit
 from .control.position import LAG63
 
 #: the doublets flown: amplitude (m/s^2 per axis), half period (s), repeats, rest after each axis
@@ -131,21 +132,42 @@ class _AxisFit:
         # the measured velocity's integral: the drag term's regressor
         self.iv = np.concatenate([[0.0], np.cumsum(0.5 * (self.vs[1:] + self.vs[:-1])
                                                     * np.diff(self.ts))])
+        # for the search: every column but the lagged commands' is the same at every (tau, d),
+        # so they are projected out once (an orthonormal basis of them) and each (tau, d)
+        # solves for one column instead of a least squares of all
+        if self.leg is not None:
+            target, fixed = self.vs - self.leg_s0 * self.iv, self.poly
+        elif self.drag is not None:
+            target, fixed = self.vs + self.drag * self.iv, self.poly
+        else:
+            target, fixed = self.vs, [-self.iv, *self.poly]
+        self._basis, _ = np.linalg.qr(np.column_stack(fixed))
+        self._rest_target = self._rest(target)
+        self._rest_iv = self._rest(self.iv)
+
+    def _rest(self, x):
+        """What of ``x`` the columns fixed over the search do not explain."""
+        return x - self._basis @ (self._basis.T @ x)
+
+    def sse(self, tau, d):
+        """The squared velocity residual :meth:`solve` gives for (tau, d), as the search needs
+        it (the same least squares, solved by projection: a tenth of the time)."""
+        if d != self._held_d:
+            self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
+        col = self._rest(lagged_change(self._held, _alpha(tau), ORDER, self.at, self.i0, FINE_S))
+        if self.leg is not None:
+            col = col - self.leg_ratio(tau, d) * self._rest_iv
+        norm = float(col @ col)
+        r = self._rest_target - (float(col @ self._rest_target) / norm) * col if norm > 0.0 \
+            else self._rest_target
+        return float(r @ r)
 
     def solve(self, tau, d):
         """(sse, k, v0, b, c) of the velocity fit for lag ``tau`` and dead time ``d``."""
         if d != self._held_d:  # the search runs every lag at one dead time before the next
             self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
-        # imported here, not with the module: every flight imports this module, most of them
-        # without fitting anything, and scipy.signal takes about a second (load_fitting)
-        from scipy.signal import lfilter
-        y = self._held
-        alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
-        for _ in range(ORDER):
-            y, _ = lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
         # the modelled velocity change since the window began
-        w = np.cumsum(y) * FINE_S
-        w = w[self.at] - w[self.i0]
+        w = lagged_change(self._held, _alpha(tau), ORDER, self.at, self.i0, FINE_S)
         if self.leg is not None:  # c = k s1 - s0: k's column carries the drag's share
             s1, s0 = self.leg_ratio(tau, d), self.leg_s0
             target = self.vs - s0 * self.iv
@@ -174,31 +196,68 @@ class _AxisFit:
         if d != self._leg_d:
             self._leg_d = d
             self._leg_held = [_shifted_hold(self.t, self.u, g, d) for g, _ in self.leg]
-        from scipy.signal import lfilter
-        alpha = 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
-        means = []
-        for (_, i0), y in zip(self.leg, self._leg_held):
-            for _ in range(ORDER):
-                y, _ = lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
-            means.append(float(y[i0:].mean()))
+        alpha = _alpha(tau)
+        means = [float(lagged(y, alpha, ORDER)[i0:].mean())
+                 for (_, i0), y in zip(self.leg, self._leg_held)]
         return (means[0] - means[1]) / self.leg_dv
 
 
+def _alpha(tau):
+    """The gain of a first-order lag ``tau`` discretised at :data:`FINE_S` (1: no lag)."""
+    return 1.0 - math.exp(-FINE_S / tau) if tau > 0.0 else 1.0
+
+
+@jit
+def lagged(x, alpha, order):
+    """``x`` through ``order`` first-order lags ``y += alpha (x - y)``, each started at rest
+    on ``x[0]``.  The operations and their order are scipy.signal.lfilter's for ``b = [alpha],
+    a = [1, alpha - 1], zi = [x[0] (1 - alpha)]`` (what the fit called before: the same bits),
+    without its per-call cost, which was half of a fit's time."""
+    y = x.copy()
+    a1 = alpha - 1.0
+    for _ in range(order):
+        z = y[0] * (1.0 - alpha)
+        for k in range(y.size):
+            xk = y[k]
+            yk = z + alpha * xk
+            z = xk * 0.0 - yk * a1
+            y[k] = yk
+    return y
+
+
+@jit
+def lagged_change(x, alpha, order, at, i0, dt):
+    """The integral (rectangles of ``dt``, as ``np.cumsum(y) * dt``) of ``x`` through
+    :func:`lagged`, at the indices ``at`` less its value at ``i0``."""
+    y = lagged(x, alpha, order)
+    total = 0.0
+    for k in range(y.size):
+        total += y[k]
+        y[k] = total
+    base = y[i0] * dt
+    out = np.empty(at.size)
+    for j in range(at.size):
+        out[j] = y[at[j]] * dt - base
+    return out
+
+
 def load_fitting():
-    """Import what a fit uses (scipy.signal and scipy.optimize, about a second) now.  A flight
-    that will identify calls this before it flies: the fit runs in a thread beside the control
-    loop, and an import there would hold the interpreter for the loop's steps."""
+    """Import what a fit uses (scipy.optimize, about half a second) and load its kernels from
+    numba's cache (compiled there on a first run: a few seconds) now.  A flight that will
+    identify calls this before it flies: the fit runs in a thread beside the control loop, and
+    an import or a compile there would hold the interpreter for the loop's steps."""
     import importlib
 
-    for name in ("scipy.optimize", "scipy.signal"):
-        importlib.import_module(name)
+    importlib.import_module("scipy.optimize")
+    lagged(np.zeros(4), 0.5, ORDER)  # the leg's reading calls it as the fit's integral does
+    lagged_change(np.zeros(4), 0.5, ORDER, np.arange(4), 0, FINE_S)
 
 
 def _search(fits):
     """(tau, d) minimising the summed squared velocity residual of ``fits`` (each an
     :class:`_AxisFit`): a grid, then Nelder-Mead from its best point."""
     def total(tau, d):
-        return sum(f.solve(tau, d)[0] for f in fits)
+        return sum(f.sse(tau, d) for f in fits)
 
     best = (math.inf, None, None)
     for d in np.arange(0.0, MAX_DELAY_S + 1e-9, 0.01):

@@ -35,8 +35,9 @@ def pytest_xdist_auto_num_workers(config):
 
 #: what the controller process compiles before the workers start, two processes side by side:
 #: the bundled vehicle's firmware, and the in-process closed loop with the companion's
-#: controllers.  numba caches them on disk; without this, on a clean clone every worker compiles
-#: the same kernels at its first flight, at once (a minute of both cores, three times over).
+#: controllers and the identification fit's.  numba caches them on disk; without this, on a
+#: clean clone every worker compiles the same kernels at its first flight, at once (a minute of
+#: both cores, three times over).
 WARM_UPS = (
     "from sim.cli import warm_up; warm_up('x500', 'thesis', 'px4')",
     "import numpy as np\n"
@@ -47,7 +48,9 @@ WARM_UPS = (
     "fly_inprocess(m)\n"
     "for kind in ('ladrc', 'adrc', 'pd', 'pid'):\n"
     "    c = make_controller(m.controller, hover_thrust=0.5, kind=kind, vehicle='x500')\n"
-    "    c.reset(np.zeros(3)); c.update(np.zeros(3), np.zeros(3), np.zeros(3))\n",
+    "    c.reset(np.zeros(3)); c.update(np.zeros(3), np.zeros(3), np.zeros(3))\n"
+    "from mavadrc.identify import load_fitting\n"
+    "load_fitting()\n",
 )
 
 

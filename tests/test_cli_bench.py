@@ -19,7 +19,8 @@ def test_bench_json_prints_the_control_and_physics_figures():
     for key in ("linear_adrc_step_us", "han_adrc_step_us", "pd_step_us",
                 "position_controller_ladrc_step_us", "attitude_controller_ladrc_step_us",
                 "physics_step_us", "vehicle_step_us", "batch_vehicle_steps_per_s",
-                "reference_sample_us", "reference_sample_many_per_time_us"):
+                "reference_sample_us", "reference_sample_many_per_time_us",
+                "identify_lags_us", "scipy_lfilter_lags_us", "identify_fit_axis_s"):
         assert math.isfinite(fig[key]) and fig[key] > 0.0, key
     assert all(k.endswith(UNITS) or k.startswith("ratio_") for k in fig)
     for peer, key in (("pyadrc", "pyadrc_statespace_step_us"), ("rotorpy", "rotorpy_step_us")):

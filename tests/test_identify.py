@@ -80,6 +80,39 @@ def test_the_fit_recovers_a_plant_of_its_own_form(tau, d):
     assert f["drag_per_s"] == pytest.approx(0.3, abs=0.1)
 
 
+def test_the_fits_lags_are_scipys_lfilter_bit_for_bit():
+    """The fit's compiled lags make scipy.signal.lfilter's operations in its order (what the
+    fit called before): the same bits, so the fits it made are made again exactly."""
+    from scipy.signal import lfilter
+    x = np.cumsum(np.random.default_rng(3).standard_normal(5000)) * 0.1
+    at = np.sort(np.random.default_rng(4).choice(x.size, 300, replace=False))
+    for tau in (0.0, 0.004, 0.05, 0.3, 1.0):
+        alpha = I._alpha(tau)
+        y = x
+        for _ in range(I.ORDER):
+            y, _ = lfilter([alpha], [1.0, alpha - 1.0], y, zi=[y[0] * (1.0 - alpha)])
+        assert np.array_equal(I.lagged(x, alpha, I.ORDER), y), tau
+        w = np.cumsum(y) * I.FINE_S
+        assert np.array_equal(I.lagged_change(x, alpha, I.ORDER, at, 17, I.FINE_S),
+                              w[at] - w[17]), tau
+
+
+def test_the_searchs_residual_is_the_least_squares_one():
+    """The search solves one column per (tau, d) by projection: its residual is the full
+    least squares' (solve) with the drag fitted, told, or tied to the gain by a leg."""
+    ref, u_of_t = _doublets_from(1.5)
+    t, u, v = plant_response(u_of_t, 0.05, 0.02, gust=lambda t: 0.5 * math.sin(0.7 * t),
+                             noise=0.01, seconds=8.0)
+    leg = [(2.0, 3.0, 1.0, 0.1), (4.5, 5.5, -1.0, -0.12)]
+    fits = [I._AxisFit(t, u, v, 1.5, 1.5 + ref.duration),
+            I._AxisFit(t, u, v, 1.5, 1.5 + ref.duration, drag=0.3),
+            I._AxisFit(t, u, v, 1.5, 1.5 + ref.duration, leg=leg)]
+    assert fits[2].leg is not None
+    for f in fits:
+        for tau, d in [(0.01, 0.0), (0.05, 0.02), (0.2, 0.13), (0.9, 0.3)]:
+            assert f.sse(tau, d) == pytest.approx(f.solve(tau, d)[0], rel=1e-9, abs=1e-12)
+
+
 def test_a_response_of_another_form_gets_its_63_percent_time():
     """One lag plus dead time (not the model's two lags): the 63 % time, what the observers
     use, still within 10 %."""
@@ -282,17 +315,21 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
 
 def test_a_flight_starts_without_scipys_fitting_and_loads_it_only_to_identify():
     """Importing the flight leaves scipy.signal and scipy.optimize (1.4 s of the 2.25 a start
-    took) unloaded; load_fitting loads them."""
+    took) unloaded; load_fitting loads the optimizer, and the fit's kernels are compiled or
+    loaded from numba's cache by it, not by the fit (a thread beside the loop)."""
     import subprocess
     import sys
     code = ("import sys, mavadrc.fly\n"
-            "before = [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')]\n"
-            "from mavadrc.identify import load_fitting\n"
-            "load_fitting()\n"
-            "print(before, [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')])\n")
+            "from mavadrc import identify as I\n"
+            "seen = lambda: [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')]\n"
+            "before = seen()\n"
+            "ready = [bool(k.overloads) for k in (I.lagged, I.lagged_change)]\n"
+            "I.load_fitting()\n"
+            "print(before, ready, seen(), [bool(k.overloads) for k in (I.lagged, "
+            "I.lagged_change)])\n")
     got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=Path(__file__).resolve().parent.parent, check=True).stdout.strip()
-    assert got == "[False, False] [True, True]", got
+    assert got == "[False, False] [False, False] [False, True] [True, True]", got
 
 
 def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
