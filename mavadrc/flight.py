@@ -771,10 +771,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def _identify_fit(self, d, drag=None):
         """The fit of the identify segment's samples ``d`` (``drag``: known per axis, else
         fitted), and, if it holds, the mission's controller made with it: (record, controller
-        or None, gains, delay margin)."""
+        or None, gains, delay margin).  The record says how long the fit took (``fit_s``) and
+        the whole of it, the controller and its margins made (``made_in_s``)."""
+        t0 = time.perf_counter()
         rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], self._id_windows,
                          f"in flight, on system {self.link.target_system} "
                          f"({self.link.autopilot})", drag=drag)
+        rec["fit_s"] = rec["made_in_s"] = round(time.perf_counter() - t0, 3)
         if failure_text(rec) is not None:
             return rec, None, None, None
         gains = resolve_gains(self.m.controller, self.kind,
@@ -789,6 +792,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         rec["delay_margin_one_lag_s"] = margin_record(delay_margin(make_controller(
             self.m.controller, hover_thrust=0.5, kind=self.kind, rate_hz=self.rate,
             gains=one)))
+        rec["made_in_s"] = round(time.perf_counter() - t0, 3)
         return rec, ctrl, gains, margin
 
     def _identified(self, s, ref_vel, rec, ctrl, gains, margin):
@@ -898,7 +902,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         old_lag = self.gains["input_lag"]
         note = {"at_s": round(t, 2), "drag_per_s": [None if x is None else round(x, 4)
                                                       for x in drag[:2]],
-                "axes": rec["axes"]}
+                "axes": rec["axes"], "fit_s": rec["fit_s"], "made_in_s": rec["made_in_s"]}
         if ctrl is None:
             note["flown"] = False
             note["why"] = failure_text(rec)

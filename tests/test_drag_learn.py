@@ -209,6 +209,7 @@ def test_the_lag_is_fitted_again_with_the_drag_learnt_and_flown_without_a_jump(t
     s = json.loads((folder / "summary.json").read_text())
     ref = s["identification"]["refined"]
     assert ref["flown"] is True
+    assert 0.0 < ref["fit_s"] <= ref["made_in_s"]
     assert ref["drag_per_s"] == pytest.approx([1.0, 1.0], rel=0.1)
     assert 0.24 < ref["input_lag"][0] < 0.28
     assert s["controller_flown"]["input_lag"][0] == pytest.approx(ref["input_lag"][0], abs=1e-3)

@@ -303,6 +303,8 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     assert summary["controller_flown"]["input_lag"] == pytest.approx(lag)
     # the fit is made (here at once: lockstep) as the vehicle starts to hold still for it
     assert summary["identification"]["switched_at_speed_mps"] == 0.0
+    # how long the fit took, and with the controller and its margins made
+    assert 0.0 < summary["identification"]["fit_s"] <= summary["identification"]["made_in_s"]
     _, phases = I.flight_mission(load_mission("configs/missions/hover.yaml")).build_trajectory()
     land = dict((name, t) for t, name in phases)["land"]
     assert summary["identification"]["switched_at_s"] == pytest.approx(land - I.HANDOVER_S,
