@@ -71,9 +71,6 @@ TRUE_DIST = "TRUE_DIST"
 #: in the final descent or after touchdown, a tilt past 45 deg (its cosine) is a vehicle on its
 #: side, not landed
 TIPPED_COS = math.cos(math.radians(45.0))
-#: lockstep: poll the link this long (s) for the vehicle's answer before sleeping in select
-#: (the vehicle answers within a few hundred microseconds; a wake-up from select costs ~50 us)
-LOCKSTEP_SPIN_S = 0.002
 #: lockstep: the least telemetry timeout (s); the vehicle waits on us, so a machine busy
 #: elsewhere slows the answer without any link being lost
 LOCKSTEP_STALE_S = 5.0
@@ -440,8 +437,6 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.takeover = takeover
         self.bundled = bundled  # None: find out from AUTOPILOT_VERSION
         self.watchdog = watchdog  # raises if the vehicle we started died
-        if lockstep:
-            link.spin_s = LOCKSTEP_SPIN_S
         # vehicle time (s) at which the mission clock starts, the thrust spooled up over the
         # SPOOL_S before it (experiments: every run starts at the same time); None: as soon as
         # the motors are up

@@ -274,7 +274,6 @@ class Link:
         self._last_seq = None
         # sequence numbers jumped over and not yet seen (count_sequence)
         self._skipped = collections.deque(maxlen=SKIPPED_KEPT)
-        self.spin_s = 0.0  # UDP: poll this long (s) for data before sleeping (lockstep sets it)
         self._queue = collections.deque()
         self.timesync = TimeSync()
         self._timesync_wall = 0.0
@@ -417,14 +416,9 @@ class Link:
     def _recv_datagram(self, timeout):
         conn = self.conn
         data = conn.recv()
-        if not data:
+        if not data:  # waited for asleep, in lockstep too (see sim.server's loop)
             if self.tlog is not None:
                 self.tlog.flush()
-            if self.spin_s > 0.0:
-                end = time.perf_counter() + min(self.spin_s, timeout)
-                while not data and time.perf_counter() < end:
-                    data = conn.recv()
-        if not data:
             if not conn.select(timeout):
                 return None
             data = conn.recv()

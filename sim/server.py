@@ -196,29 +196,22 @@ class SitlServer:
         for link in self.links:
             link.sock.close()
 
-    #: lockstep: poll this long (wall s) for the next setpoint before sleeping in select.  The
-    #: companion answers within a few hundred microseconds, and waking from select costs about
-    #: 50 us on each side of the loop.
-    LOCKSTEP_SPIN_S = 0.002
-
     def _loop(self):
         by_sock = {link.sock: link for link in self.links}
         socks = list(by_sock)
         next_tick = time.monotonic()
         while self._running:
             now = time.monotonic()
-            readable = ()
+            # in lockstep the next setpoint is waited for asleep in select: polling for it kept
+            # a core busy while the companion computed, and with two lockstep flights on two
+            # cores each side's spin held the core its peer needed (2.5x the time)
             if self.lockstep and not self._lockstep_stalled():
                 timeout = 0.1
-                end = time.perf_counter() + self.LOCKSTEP_SPIN_S
-                while not readable and time.perf_counter() < end:
-                    readable, _, _ = select.select(socks, [], [], 0.0)
             else:
                 timeout = max(0.0, next_tick - now)
                 for r in self.realtime:  # wake for the next datagram the link holds back
                     timeout = min(timeout, max(0.0, r.next_due() - now))
-            if not readable:
-                readable, _, _ = select.select(socks, [], [], timeout)
+            readable, _, _ = select.select(socks, [], [], timeout)
             for sock in readable:
                 self.receiver.drain(by_sock[sock])
             if self.realtime:
