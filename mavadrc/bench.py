@@ -384,7 +384,34 @@ def fly_figures(realtime_seconds=10.0, lockstep_seconds=60.0):
                          stream=io.StringIO())
         fig["fly_lockstep_60s_mission_wall_s"] = time.perf_counter() - t0
         fig["fly_lockstep_mission_sim_s"] = summary["duration_s"]
+        hover_mission(tmp, 100, 20.0)  # written as hover100.yaml
+        fig.update(_lockstep_side_by_side(Path(tmp) / "hover100.yaml", tmp))
     return fig
+
+
+def _lockstep_side_by_side(path, folder):
+    """`mavadrc fly --lockstep` of the mission at ``path``, alone and then two at once (each
+    its own companion and vehicle processes): the walls, and two at once over one.  On 2
+    cores, for the bench's 29 s hover, two flights that wait for their peers asleep take
+    1.3-1.7 times one; when both sides polled for each other's datagrams, 4.4."""
+    import subprocess
+
+    def run(n):
+        t0 = time.perf_counter()
+        procs = [subprocess.Popen([sys.executable, "-m", "mavadrc", "fly", str(path),
+                                   "--lockstep", "--no-figures", "-q",
+                                   "--out", f"{folder}/side{n}-{k}"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for k in range(n)]
+        codes = [p.wait() for p in procs]
+        if any(codes):
+            raise RuntimeError(f"a lockstep flight of the bench failed (exit {codes})")
+        return time.perf_counter() - t0
+
+    one = run(1)
+    two = run(2)
+    return {"fly_lockstep_one_alone_wall_s": one, "fly_lockstep_two_at_once_wall_s": two,
+            "ratio_fly_lockstep_two_at_once_over_one": two / one}
 
 
 def compare_figures(seeds=10, mavlink=True):

@@ -6,6 +6,8 @@ import math
 import subprocess
 import sys
 
+import pytest
+
 from mavadrc.bench import sitl_figures
 
 UNITS = ("_us", "_s", "_x_realtime", "_pct", "_pct_of_core")
@@ -53,3 +55,21 @@ def test_sitl_figures_measure_a_running_vehicle():
                         "ratio_sitl_realtime_cpu_wander_over_plain", "sitl_lockstep_x_realtime"}
     assert all(math.isfinite(v) and v >= 0.0 for v in fig.values())
     assert fig["sitl_lockstep_x_realtime"] > 1.0  # lockstep is not tied to the wall clock
+
+
+def test_bench_flies_lockstep_alone_and_two_at_once(tmp_path):
+    """The figures of two lockstep flights side by side: both flown as processes of their own
+    (a failed one raises), the walls and their ratio reported."""
+    from mavadrc.bench import _lockstep_side_by_side
+    path = tmp_path / "hover.yaml"
+    path.write_text("name: bench hover\nvehicle: crazyflie\n"
+                    "controller: {type: ladrc, rate_hz: 100}\ntrajectory:\n"
+                    "  - takeoff: {altitude: 0.5, speed: 1.0}\n  - hover: {duration: 1.0}\n  - land: {speed: 1.0}\n")
+    fig = _lockstep_side_by_side(path, tmp_path)
+    assert set(fig) == {"fly_lockstep_one_alone_wall_s", "fly_lockstep_two_at_once_wall_s",
+                        "ratio_fly_lockstep_two_at_once_over_one"}
+    assert all(math.isfinite(v) and v > 0.0 for v in fig.values())
+    assert fig["ratio_fly_lockstep_two_at_once_over_one"] == pytest.approx(
+        fig["fly_lockstep_two_at_once_wall_s"] / fig["fly_lockstep_one_alone_wall_s"])
+    summaries = sorted(tmp_path.glob("side2-*/*/summary.json"))
+    assert len(summaries) == 2 and all(json.loads(p.read_text())["landed"] for p in summaries)
