@@ -64,7 +64,8 @@ def test_bench_flies_lockstep_alone_and_two_at_once(tmp_path):
     path = tmp_path / "hover.yaml"
     path.write_text("name: bench hover\nvehicle: crazyflie\n"
                     "controller: {type: ladrc, rate_hz: 100}\ntrajectory:\n"
-                    "  - takeoff: {altitude: 0.5, speed: 1.0}\n  - hover: {duration: 1.0}\n  - land: {speed: 1.0}\n")
+                    "  - takeoff: {altitude: 0.5, speed: 1.0}\n"
+                    "  - hover: {duration: 1.0}\n  - land: {speed: 1.0}\n")
     fig = _lockstep_side_by_side(path, tmp_path)
     assert set(fig) == {"fly_lockstep_one_alone_wall_s", "fly_lockstep_two_at_once_wall_s",
                         "ratio_fly_lockstep_two_at_once_over_one"}
