@@ -257,7 +257,10 @@ def test_latency_keeps_the_order_and_jitter_spreads_and_reorders(ends):
     got = timed_run(e)
     assert sorted(i for i, _ in got) == list(range(40))
     delays = [d for _, d in got]
-    assert min(delays) >= 0.04 and max(delays) < 0.07, delays
+    # never early; late only by the machine's wake-ups: one of 40 came 0.7 ms past a 10 ms
+    # margin on a loaded CI machine, so the bound is on the 90th percentile, and the worst
+    # only has to stay far below what a wider jitter would give
+    assert min(delays) >= 0.04 and sorted(delays)[-4] < 0.065 and max(delays) < 0.1, delays
     assert abs(statistics.mean(delays) - 0.05) < 0.004
     assert statistics.pstdev(delays) > 0.003
     assert any(a > b for (a, _), (b, _) in zip(got, got[1:]))  # 5 ms apart, +-10 ms: crossed
