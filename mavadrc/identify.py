@@ -145,6 +145,13 @@ class _AxisFit:
         self._rest_target = self._rest(target)
         self._rest_iv = self._rest(self.iv)
 
+    def _held_for(self, d):
+        """The commands seen ``d`` s late on the grid, kept for the next call (the search runs
+        every lag at one dead time before the next)."""
+        if d != self._held_d:
+            self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
+        return self._held
+
     def _rest(self, x):
         """What of ``x`` the columns fixed over the search do not explain."""
         return x - self._basis @ (self._basis.T @ x)
@@ -152,9 +159,8 @@ class _AxisFit:
     def sse(self, tau, d):
         """The squared velocity residual :meth:`solve` gives for (tau, d), as the search needs
         it (the same least squares, solved by projection: a tenth of the time)."""
-        if d != self._held_d:
-            self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
-        col = self._rest(lagged_change(self._held, _alpha(tau), ORDER, self.at, self.i0, FINE_S))
+        col = self._rest(lagged_change(self._held_for(d), _alpha(tau), ORDER, self.at, self.i0,
+                                       FINE_S))
         if self.leg is not None:
             col = col - self.leg_ratio(tau, d) * self._rest_iv
         norm = float(col @ col)
@@ -164,10 +170,8 @@ class _AxisFit:
 
     def solve(self, tau, d):
         """(sse, k, v0, b, c) of the velocity fit for lag ``tau`` and dead time ``d``."""
-        if d != self._held_d:  # the search runs every lag at one dead time before the next
-            self._held_d, self._held = d, _shifted_hold(self.t, self.u, self.grid, d)
         # the modelled velocity change since the window began
-        w = lagged_change(self._held, _alpha(tau), ORDER, self.at, self.i0, FINE_S)
+        w = lagged_change(self._held_for(d), _alpha(tau), ORDER, self.at, self.i0, FINE_S)
         if self.leg is not None:  # c = k s1 - s0: k's column carries the drag's share
             s1, s0 = self.leg_ratio(tau, d), self.leg_s0
             target = self.vs - s0 * self.iv
