@@ -6,6 +6,7 @@ units.  A peer that is not installed has None (null in JSON) for its figures, an
 how to install it.
 """
 
+import contextlib
 import json
 import math
 import sys
@@ -16,7 +17,7 @@ import numpy as np
 from sim.bench import median_us
 
 from .control import PD, AttitudeController, HanADRC, LinearADRC, PositionController
-from .embedded import free_udp_port
+from .embedded import free_udp_port, udp_sink
 
 
 #: the peers measured beside our kernels when installed, and how to install them
@@ -165,21 +166,29 @@ def _cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+@contextlib.contextmanager
 def _sitl_process(*extra):
+    """``python -m sim`` as a process of its own for the block: (process, offboard port); its
+    ground-station streams go to a port held meanwhile."""
     import subprocess
     port = free_udp_port()
+    sink = udp_sink()
     proc = subprocess.Popen([sys.executable, "-m", "sim", "--instance", "20", "--offboard-port",
-                             str(port), "--gcs-port", str(free_udp_port()), "--bind-offboard", "0",
-                             "--bind-gcs", "0", *extra],
+                             str(port), "--gcs-port", str(sink.getsockname()[1]),
+                             "--bind-offboard", "0", "--bind-gcs", "0", *extra],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return proc, port
+    try:
+        yield proc, port
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        sink.close()
 
 
 def _realtime_load(mavutil, seconds, *extra):
     """(clock error %, CPU % of a core) of the bundled vehicle serving in real time for
     ``seconds`` with the server options ``extra``."""
-    proc, port = _sitl_process(*extra)
-    try:
+    with _sitl_process(*extra) as (proc, port):
         c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
         c.wait_heartbeat(timeout=30)
         first = c.recv_match(type="ATTITUDE", blocking=True, timeout=30)
@@ -194,9 +203,6 @@ def _realtime_load(mavutil, seconds, *extra):
         c.close()
         return (abs((last.time_boot_ms - boot0) / 1e3 - wall) / wall * 100,
                 (cpu1 - cpu0) / wall * 100)
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
@@ -221,12 +227,8 @@ def sitl_figures(realtime_seconds=10.0, lockstep_seconds=10.0):
     fig["ratio_sitl_realtime_cpu_wander_over_plain"] = \
         cpu / max(fig["sitl_realtime_cpu_pct_of_core"], 1e-9)
 
-    proc, port = _sitl_process("--lockstep", "--lockstep-rate", "100")
-    try:
+    with _sitl_process("--lockstep", "--lockstep-rate", "100") as (_, port):
         fig["sitl_lockstep_x_realtime"] = _lockstep_hover(mavutil, port, lockstep_seconds)
-    finally:
-        proc.terminate()
-        proc.wait(10)
     return fig
 
 
@@ -257,15 +259,12 @@ def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300)
     needs less than one core.  Every link sends to one bound loopback socket nobody reads (the
     kernel drops what overflows it), so what is measured is the server's own work.
     """
-    import socket
-
     from sim.fleet import FleetServer
     from sim.mavlink.link import LPN
     from sim.server import SitlServer
     from sim.vehicle import SimVehicle
 
-    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sink.bind(("127.0.0.1", 0))
+    sink = udp_sink()
     port = sink.getsockname()[1]
 
     def servers(n):

@@ -37,6 +37,17 @@ def free_udp_port():
     return _free_port(socket.SOCK_DGRAM)
 
 
+def udp_sink():
+    """A loopback UDP socket bound to a port of its own and never read: the destination for
+    datagrams nobody reads (a vehicle's ground-station streams in a test or a benchmark).  A
+    port that was only free when asked for (:func:`free_udp_port`) may be handed to another
+    program meanwhile, which then reads these datagrams as its own vehicle's.  Close it when
+    the sender stops."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    return s
+
+
 def free_tcp_port():
     """A loopback TCP port nobody is bound to right now."""
     return _free_port(socket.SOCK_STREAM)

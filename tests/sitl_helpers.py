@@ -10,9 +10,26 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: spe
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from mavadrc.embedded import free_tcp_port, free_udp_port  # noqa: F401  (re-exported for tests)
+from mavadrc.embedded import free_tcp_port, free_udp_port, udp_sink  # noqa: F401  (re-exported)
 from sim.server import SitlServer
 from sim.vehicle import SimVehicle
+
+
+class _Server(SitlServer):
+    """A SitlServer whose ground-station streams go to a port held for it (``sink``), released
+    when it stops.  Sent to a port that was only free, another test running beside it could be
+    handed that port for its client and read this vehicle's LOCAL_POSITION_NED as its own (a
+    lockstep test then sees its vehicle's clock jump)."""
+
+    def __init__(self, *args, sink, **kw):
+        self.sink = sink
+        super().__init__(*args, gcs_port=sink.getsockname()[1], **kw)
+
+    def stop(self):
+        try:
+            super().stop()
+        finally:
+            self.sink.close()
 
 
 def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_key=None,
@@ -21,9 +38,9 @@ def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_
     ``params``: initial values of the autopilot's parameters ({NAME: value})."""
     port = free_udp_port()
     v = SimVehicle(vehicle, wind=wind, seed=seed, **vehicle_kw)
-    srv = SitlServer(v, autopilot, instance, lockstep=lockstep, signing_key=signing_key,
-                     bind_offboard=0, bind_gcs=0, offboard_port=port, gcs_port=free_udp_port(),
-                     params=params)
+    srv = _Server(v, autopilot, instance, lockstep=lockstep, signing_key=signing_key,
+                  bind_offboard=0, bind_gcs=0, offboard_port=port, sink=udp_sink(),
+                  params=params)
     srv.start()
     return srv, port
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl_helpers import Client, free_udp_port, px4_mode
+from sitl_helpers import Client, free_udp_port, px4_mode, udp_sink
 from sim import cli
 from sim.fleet import FleetServer, VehicleRows
 from sim.server import SitlServer
@@ -39,10 +39,13 @@ def free_port_run(n):
     pytest.skip(f"no run of {n} free UDP ports")
 
 
-def fleet_args(count, offboard_base, *extra):
+def fleet_args(count, offboard_base, *extra, gcs_port=None):
+    """The command's options; the ground-station streams go to ``gcs_port`` (give a held one,
+    :func:`udp_sink`, when the fleet is started)."""
     parser = cli.add_arguments(argparse.ArgumentParser())
+    gcs_port = free_udp_port() if gcs_port is None else gcs_port
     return parser.parse_args(["--count", str(count), "--offboard-port", str(offboard_base),
-                              "--gcs-port", str(free_udp_port()), "--bind-offboard", "0",
+                              "--gcs-port", str(gcs_port), "--bind-offboard", "0",
                               "--bind-gcs", "0", *extra])
 
 
@@ -52,12 +55,15 @@ def fleet3():
     vehicle's offboard port."""
     base = free_port_run(3)
     clients = [Client(base + k) for k in range(3)]
-    fleet = FleetServer(cli.make_servers(fleet_args(3, base, "--param", "COM_SPOOLUP_TIME=0")))
+    sink = udp_sink()
+    fleet = FleetServer(cli.make_servers(fleet_args(3, base, "--param", "COM_SPOOLUP_TIME=0",
+                                                    gcs_port=sink.getsockname()[1])))
     fleet.start()
     yield fleet, clients
     for c in clients:
         c.close()
     fleet.stop()
+    sink.close()
 
 
 def test_count_3_answers_with_three_heartbeats_on_their_own_ports(fleet3):
@@ -142,16 +148,17 @@ def _drive(server, k, step):
             server.receiver.handle(link, _command(k, M.MAV_CMD_DO_SET_MODE, 1, 6))
 
 
-def _servers(n):
-    sink = free_udp_port()
+def _servers(n, sink):
+    port = sink.getsockname()[1]
     return [SitlServer(SimVehicle("crazyflie", seed=k), "px4", k, bind_offboard=0, bind_gcs=0,
-                       offboard_port=sink, gcs_port=sink, params={"COM_SPOOLUP_TIME": 0})
+                       offboard_port=port, gcs_port=port, params={"COM_SPOOLUP_TIME": 0})
             for k in range(n)]
 
 
 def test_the_fleet_steps_each_vehicle_exactly_as_a_server_of_its_own():
-    alone = _servers(3)
-    fleet = FleetServer(_servers(3))
+    sink = udp_sink()
+    alone = _servers(3, sink)
+    fleet = FleetServer(_servers(3, sink))
     try:
         modes = set()
         for step in range(800):
@@ -176,6 +183,7 @@ def test_the_fleet_steps_each_vehicle_exactly_as_a_server_of_its_own():
     finally:
         for s in alone + fleet.servers:
             s._close()
+        sink.close()
 
 
 def test_vehicle_rows_match_single_vehicles_in_every_mode():

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from sitl_helpers import free_udp_port
+from sitl_helpers import free_udp_port, udp_sink
 
 MAVPROXY = shutil.which("mavproxy.py") or os.path.join(os.path.dirname(sys.executable),
                                                        "mavproxy.py")
@@ -18,10 +18,11 @@ MAVPROXY = shutil.which("mavproxy.py") or os.path.join(os.path.dirname(sys.execu
 @pytest.mark.skipif(not os.path.exists(MAVPROXY), reason="MAVProxy is not installed")
 def test_mavproxy_detects_the_vehicle_and_downloads_every_parameter(tmp_path):
     gcs = free_udp_port()
+    offboard = udp_sink()  # nobody reads the offboard link here: its streams go to a held port
     sim = subprocess.Popen([sys.executable, "-m", "mavadrc", "sitl", "--instance", "11",
                             "--gcs-port", str(gcs),
-                            "--offboard-port", str(free_udp_port()), "--bind-offboard", "0",
-                            "--bind-gcs", "0", "--duration", "60"],
+                            "--offboard-port", str(offboard.getsockname()[1]),
+                            "--bind-offboard", "0", "--bind-gcs", "0", "--duration", "60"],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     log = tmp_path / "mavproxy.out"
     try:
@@ -38,6 +39,7 @@ def test_mavproxy_detects_the_vehicle_and_downloads_every_parameter(tmp_path):
     finally:
         sim.terminate()
         sim.wait(10)
+        offboard.close()
     text = log.read_text()
     assert "Detected vehicle 12:1" in text  # instance 11 -> system 12, autopilot component 1
     got = re.search(r"Received (\d+) parameters", text)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl_helpers import (Client, Lockstep, free_udp_port, px4_mode, start_vehicle,
+from sitl_helpers import (Client, Lockstep, free_udp_port, px4_mode, start_vehicle, udp_sink,
                           wait_until)
 
 M = mavlink
@@ -547,7 +547,8 @@ def test_initial_heading_and_parameters_from_the_command_line():
     from sim import cli
 
     parser = cli.add_arguments(argparse.ArgumentParser())
-    base = ["--offboard-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
+    gcs = udp_sink()
+    base = ["--offboard-port", str(free_udp_port()), "--gcs-port", str(gcs.getsockname()[1]),
             "--bind-offboard", "0", "--bind-gcs", "0"]
     with pytest.raises(SystemExit, match="unknown parameter 'NOPE_PARAM' for the px4"):
         cli.make_server(parser.parse_args(base + ["--param", "NOPE_PARAM=1"]))
@@ -578,6 +579,7 @@ def test_initial_heading_and_parameters_from_the_command_line():
     finally:
         c.close()
         srv.stop()
+        gcs.close()
 
 
 # --- 9. lockstep stays deterministic -------------------------------------------------------------

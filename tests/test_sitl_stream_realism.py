@@ -11,7 +11,6 @@ shared machine: their tolerances are wide, their durations short.
 import argparse
 import os
 import select
-import socket
 import statistics
 import subprocess
 import sys
@@ -22,7 +21,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl_helpers import Client, free_udp_port
+from sitl_helpers import Client, free_udp_port, udp_sink
 from sim.link_flags import add_link_arguments, link_args, link_from_args
 from sim.link_model import LinkModel, Way
 from sim.mavlink.realtime import RealtimeLink
@@ -40,18 +39,21 @@ def vehicles():
     made = []
 
     def make(autopilot="px4", lockstep=False, **kw):
-        port, gcs = free_udp_port(), free_udp_port()
+        """(server, client on its offboard link, the bound socket its ground-station link
+        sends to)"""
+        port, gcs = free_udp_port(), udp_sink()
         c = Client(port)  # listening before the vehicle's first heartbeat (t = 0) leaves
         srv = SitlServer(SimVehicle("crazyflie"), autopilot, lockstep=lockstep, bind_offboard=0,
-                         bind_gcs=0, offboard_port=port, gcs_port=gcs, **kw)
-        made.append((srv, c))
+                         bind_gcs=0, offboard_port=port, gcs_port=gcs.getsockname()[1], **kw)
+        made.append((srv, c, gcs))
         srv.start()
         c.heartbeat()
         return srv, c, gcs
     yield make
-    for srv, c in made:
+    for srv, c, gcs in made:
         c.close()
         srv.stop()
+        gcs.close()
 
 
 def lpn_rate(c, seconds):
@@ -170,20 +172,17 @@ def test_samples_arrive_late_by_the_latency(vehicles):
     same vehicle (perfect, same clocks), LOCAL_POSITION_NED arrives 80 ms later, within a
     shared machine's noise; an up latency delays the command's answer by as much."""
     model = LinkModel(Way(latency_s=0.08), Way(latency_s=0.05))
-    srv, c, gcs_port = vehicles("px4", link=model, link_seed=3)
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs.bind(("127.0.0.1", gcs_port))
-    try:
-        ask = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
-        gcs.sendto(ask.command_long_encode(1, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, LPN, 20_000,
-                                           0, 0, 0, 0, 0).pack(ask),
-                   ("127.0.0.1", srv.local_ports["gcs"]))
-        t0 = time.monotonic()
-        assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, LPN, 20_000) == 0
-        rtt = time.monotonic() - t0
-        got = offsets([c.c.port, gcs], 1.5)
-    finally:
-        gcs.close()
+    srv, c, gcs = vehicles("px4", link=model, link_seed=3)
+    ask = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    gcs.sendto(ask.command_long_encode(1, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, LPN, 20_000,
+                                       0, 0, 0, 0, 0).pack(ask),
+               ("127.0.0.1", srv.local_ports["gcs"]))
+    t0 = time.monotonic()
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, LPN, 20_000) == 0
+    rtt = time.monotonic() - t0
+    while select.select([gcs], [], [], 0)[0]:  # what came before the question is not measured
+        gcs.recv(65535)
+    got = offsets([c.c.port, gcs], 1.5)
     late = statistics.median(got[c.c.port]) - statistics.median(got[gcs])
     assert len(got[gcs]) >= 30 and len(got[c.c.port]) >= 30
     assert late == pytest.approx(0.08, abs=0.02)
@@ -329,16 +328,16 @@ def test_mavadrc_sitl_says_what_the_link_did_at_exit_and_refuses_a_bad_option():
                          env=env, capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0
     assert bad.stderr.strip().splitlines() == ["--link-down: loss must be in [0, 1] (got 2.0)"]
-    listen = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    listen.bind(("127.0.0.1", 0))
+    listen, gcs = udp_sink(), udp_sink()
     try:
         ok = subprocess.run([sys.executable, "-m", "sim", "--duration", "1.5",
                              "--offboard-port", str(listen.getsockname()[1]),
-                             "--gcs-port", str(free_udp_port()), "--bind-offboard", "0",
+                             "--gcs-port", str(gcs.getsockname()[1]), "--bind-offboard", "0",
                              "--bind-gcs", "0", "--link-down", "latency=0.01,loss=0.5"],
                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=90)
     finally:
         listen.close()
+        gcs.close()
     assert ok.returncode == 0, ok.stderr
     last = ok.stdout.strip().splitlines()[-1]
     assert last.startswith("mavadrc sitl: link down: ") and " lost, " in last
