@@ -1531,6 +1531,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "rtt_ms_max": float(rtts.max()) if rtts.size else None,
             "sample_age_ms_median": float(np.median(self.ages) * 1e3) if self.ages else None,
             "sample_age_ms_p99": float(np.percentile(self.ages, 99) * 1e3) if self.ages else None,
+            # how much faster the vehicle's clock ran than ours (TIMESYNC; a simulator's runs
+            # slow when it cannot keep up): None in lockstep, where the ages come from its clock
+            "clock_skew": None if self.lockstep or self.link.timesync.offset_ns is None
+            else self.link.timesync.skew,
             "frames_received": self.link.frames_received,
             "frames_lost": self.link.frames_lost,
             "frame_loss_fraction": self.link.frame_loss(),
