@@ -93,6 +93,8 @@ class EmbeddedVehicle:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
         if mission.height_drift_mps:
             cmd += ["--height-drift", repr(mission.height_drift_mps)]
+        if mission.clock_rate != 1.0 and not lockstep:  # in lockstep the setpoints are the clock
+            cmd += ["--clock-rate", repr(mission.clock_rate)]
         if math.isnan(mission.heading_deg):
             cmd += ["--heading", "random"]  # drawn from --seed, as the fast path draws it
         elif mission.heading_deg:

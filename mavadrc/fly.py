@@ -218,6 +218,7 @@ def run_context(mission, kind, connect, lockstep):
                       wander=mission.wander, wander_corner_hz=mission.wander_corner_hz,
                       sensor_latency_s=mission.sensor_latency_s,
                       height_drift_mps=mission.height_drift_mps,
+                      clock_rate=mission.clock_rate,
                       link=None if mission.link is None else mission.link.as_dict(),
                       heading_deg=("random" if math.isnan(mission.heading_deg)
                                    else mission.heading_deg),

@@ -405,6 +405,9 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     if mission.height_drift_mps:
         raise ValueError("sim.height_drift_mps: the in-process path does not model a drifting "
                          "height estimate (it never lands); fly it over MAVLink")
+    if mission.clock_rate != 1.0:
+        raise ValueError("sim.clock_rate: the in-process path has one clock (the vehicle's); "
+                         "fly it over MAVLink in real time")
     lag = int(round(mission.sensor_latency_s / h))
     if abs(lag * h - mission.sensor_latency_s) > 1e-9:
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "

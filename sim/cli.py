@@ -43,6 +43,10 @@ def add_arguments(p):
     p.add_argument("--wander-corner", type=float, default=WANDER_CORNER_HZ, metavar="HZ",
                    help=f"the wander's corner frequency (default {WANDER_CORNER_HZ:g} Hz)")
     p.add_argument("--latency", type=float, default=0.0, help="sensor latency (s)")
+    p.add_argument("--clock-rate", type=float, default=1.0, metavar="R",
+                   help="in real time the vehicle's clock (time_boot_ms, TIMESYNC) runs at R of "
+                        "the wall clock, as a simulator's that cannot keep up does (PX4 SITL's "
+                        "ran 0.9865 on 2 cores; default 1)")
     p.add_argument("--height-drift", type=float, default=0.0, metavar="M/S",
                    help="the reported height estimate drifts up this fast (a barometer's drift; "
                         "the vehicle lands where its estimate says the ground is)")
@@ -225,6 +229,12 @@ def make_servers(args):
         raise SystemExit(f"--wander must be 0 to 1 m (got {args.wander!r})")
     if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
         raise SystemExit(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
+    clock_rate = getattr(args, "clock_rate", 1.0)
+    if not (math.isfinite(clock_rate) and 0.5 <= clock_rate <= 2.0):
+        raise SystemExit(f"--clock-rate must be 0.5 to 2 (got {clock_rate!r})")
+    if clock_rate != 1.0 and args.lockstep:
+        raise SystemExit("mavadrc sitl: --clock-rate is for real time; in lockstep the "
+                         "setpoints are the clock")
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)
     sensors = None
@@ -244,7 +254,7 @@ def make_servers(args):
                                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,
                                       home=home, params=params, link=link, link_on=link_on,
                                       link_bandwidth=bandwidth, link_seed=args.seed + k,
-                                      **fleet_ports(args, k)))
+                                      clock_rate=clock_rate, **fleet_ports(args, k)))
     except PortInUse as e:  # taken since check_ports
         for s in servers:
             s._close()

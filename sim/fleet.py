@@ -178,6 +178,7 @@ class FleetServer:
             sel.close()
 
     def _serve(self, sel):
+        wall_tick = self.tick / self.servers[0].clock_rate  # the vehicles share the options
         next_tick = time.monotonic()
         while self._running:
             timeout = max(0.0, next_tick - time.monotonic())
@@ -187,7 +188,7 @@ class FleetServer:
             now = time.monotonic()
             if now >= next_tick:
                 self.advance(self.tick)
-                next_tick += self.tick
+                next_tick += wall_tick
                 if now - next_tick > 0.25:  # fell far behind (machine busy): resynchronise
                     self.overruns += 1
                     for s in self.servers:

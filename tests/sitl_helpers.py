@@ -33,14 +33,15 @@ class _Server(SitlServer):
 
 
 def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_key=None,
-                  wind=None, seed=0, instance=0, params=None, **vehicle_kw):
+                  wind=None, seed=0, instance=0, params=None, clock_rate=1.0, **vehicle_kw):
     """A SitlServer in a thread whose offboard link sends to a free port; returns (server, port).
-    ``params``: initial values of the autopilot's parameters ({NAME: value})."""
+    ``params``: initial values of the autopilot's parameters ({NAME: value}); ``clock_rate``: its
+    clock's rate against the wall clock in real time."""
     port = free_udp_port()
     v = SimVehicle(vehicle, wind=wind, seed=seed, **vehicle_kw)
     srv = _Server(v, autopilot, instance, lockstep=lockstep, signing_key=signing_key,
                   bind_offboard=0, bind_gcs=0, offboard_port=port, sink=udp_sink(),
-                  params=params)
+                  params=params, clock_rate=clock_rate)
     srv.start()
     return srv, port
 

@@ -357,3 +357,29 @@ def test_the_age_recovers_at_once_from_a_vehicle_clock_that_jumps():
     assert ts.age(after(now - 0.002) // 1_000_000, int(now * 1e9)) == \
         pytest.approx(0.002, abs=0.0015)
 
+
+def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true_ages(tmp_path):
+    """``sim: {clock_rate: 0.95}`` (``mavadrc sitl --clock-rate``): in real time the bundled
+    vehicle's clock, the clock of its time_boot_ms and of its TIMESYNC answers, runs at 0.95 of
+    the wall clock, as a simulator's that cannot keep up does.  A real-time flight against it
+    measures the vehicle's clock 5 % slow and the samples' ages as they are (sent as they are
+    taken: within a physics tick and the loopback's delivery), where one offset per exchange
+    window read them up to 0.4 s old."""
+    from short_flights import short_mission
+
+    from mavadrc.fly import fly
+
+    mission = short_mission(tmp_path, hover=3, extra="sim: {clock_rate: 0.95}\n")
+    assert mission.clock_rate == 0.95
+    summary, _ = fly(mission, out=tmp_path, figures=False, progress=False, timeout=90.0)
+    assert summary["landed"], summary["aborted"]
+    assert summary["config"]["clock_rate"] == 0.95
+    link = summary["link"]
+    assert link["clock_skew"] == pytest.approx(-0.05, abs=0.005)
+    assert -0.002 < link["sample_age_ms_median"] / 1e3 < 0.006
+    assert link["sample_age_ms_p99"] / 1e3 < 0.015
+    # the fast path has one clock: it refuses the key rather than ignore it
+    from mavadrc.inprocess import fly_inprocess
+
+    with pytest.raises(ValueError, match="clock_rate"):
+        fly_inprocess(mission)
