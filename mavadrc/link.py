@@ -496,8 +496,9 @@ class Link:
     def timesync_poll(self, now, period=1.0):
         """Send a TIMESYNC request every ``period`` s (both PX4 and ArduPilot answer); every
         0.25 s until the vehicle's clock is fitted (:class:`TimeSync`), so that a clock that
-        runs at another rate is followed within a second or two of the first answer."""
-        if not self.timesync.fitted:
+        runs at another rate is followed within a second or two of the first answer (for 16
+        requests at most: a vehicle that does not answer is asked once a second)."""
+        if not self.timesync.fitted and self.timesync.asked < 16:
             period = min(period, 0.25)
         if now - self._timesync_wall >= period:
             self._timesync_wall = now
@@ -626,9 +627,11 @@ class TimeSync:
         self._recent = collections.deque()  # (our time at the exchange (ns), rtt_ns, offset_ns)
         self._line = None  # (t0_ns, offset at t0 (ns), skew): offset(t) = o0 + skew (t - t0)
         self.fitted = False  # whether the line is fitted (else: the newest exchange's offset)
+        self.asked = 0  # requests sent
 
     def sent(self, ts1):
         self._pending.append(ts1)
+        self.asked += 1
 
     def answered(self, tc1, ts1, now):
         if ts1 not in self._pending:

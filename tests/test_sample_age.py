@@ -383,3 +383,37 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
 
     with pytest.raises(ValueError, match="clock_rate"):
         fly_inprocess(mission)
+
+
+def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitted(monkeypatch):
+    """Until the line is fitted the companion asks every 0.25 s (it is fitted a second after
+    the first answers), then once a second; a vehicle that never answers is asked 16 times
+    quickly, then once a second."""
+    from types import SimpleNamespace
+
+    import mavadrc.link as L
+
+    clock = [0.0]
+    monkeypatch.setattr(L.time, "monotonic_ns", lambda: int(clock[0] * 1e9))
+    Link, TimeSync = L.Link, L.TimeSync
+
+    def run(answer):
+        sent = []
+        ts = TimeSync()
+        link = SimpleNamespace(timesync=ts, _timesync_wall=-10.0,
+                               mav=SimpleNamespace(timesync_send=lambda tc1, ts1: None))
+        for now in np.arange(0.0, 10.0, 0.01):
+            clock[0] = now
+            n = ts.asked
+            Link.timesync_poll(link, now)
+            if ts.asked > n:
+                sent.append(now)
+                if answer:  # our clock in ns is the vehicle's plus 3 s; round trip 0.2 ms
+                    ts1 = ts._pending[-1]
+                    ts.answered(ts1 + 3_000_100_000, ts1, ts1 + 200_000)
+        return np.diff(sent)
+
+    gaps = run(answer=True)
+    assert np.allclose(gaps[:4], 0.25) and np.allclose(gaps[6:], 1.0)
+    gaps = run(answer=False)
+    assert np.allclose(gaps[:15], 0.25) and np.allclose(gaps[15:], 1.0)
