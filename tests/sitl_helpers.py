@@ -33,11 +33,13 @@ class _Server(SitlServer):
 
 
 def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_key=None,
-                  wind=None, seed=0, instance=0, params=None, clock_rate=1.0, **vehicle_kw):
+                  wind=None, seed=0, instance=0, params=None, clock_rate=1.0, port=None,
+                  **vehicle_kw):
     """A SitlServer in a thread whose offboard link sends to a free port; returns (server, port).
     ``params``: initial values of the autopilot's parameters ({NAME: value}); ``clock_rate``: its
-    clock's rate against the wall clock in real time."""
-    port = free_udp_port()
+    clock's rate against the wall clock in real time; ``port``: where its offboard link sends
+    (default: a free port)."""
+    port = free_udp_port() if port is None else port
     v = SimVehicle(vehicle, wind=wind, seed=seed, **vehicle_kw)
     srv = _Server(v, autopilot, instance, lockstep=lockstep, signing_key=signing_key,
                   bind_offboard=0, bind_gcs=0, offboard_port=port, sink=udp_sink(),

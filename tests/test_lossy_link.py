@@ -12,7 +12,7 @@ import pytest
 
 from lossy_link import LPN, LossyLink, LossyLinkError, split_frames, start_lossy_vehicle
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from sitl_helpers import Client, free_udp_port, wait_until
+from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
 
 M = mavlink
 ARM = M.MAV_CMD_COMPONENT_ARM_DISARM
@@ -432,3 +432,50 @@ def test_with_the_vehicle_nan_sample_and_first_arm_ack_lost():
         c.close()
         link.stop()
         srv.stop()
+
+
+def test_the_proxy_runs_on_its_own_in_front_of_an_autopilot(tmp_path):
+    """``tools/lossy_proxy.py`` puts this proxy in front of any autopilot's UDP link (PX4 SITL's
+    by default): here the bundled vehicle, a real-time process of its own, whose offboard link
+    sends to the proxy.  A third of the samples are lost on the way down, commands are answered
+    through it, and on SIGTERM it says what it dropped."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    bad = subprocess.run([sys.executable, "tools/lossy_proxy.py", "--down", "loss=2"], cwd=root,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and bad.stderr.strip().splitlines() == \
+        ["--down: loss must be in [0, 1] (got 2.0)"]
+    vport, cport = free_udp_port(), free_udp_port()
+    proxy = subprocess.Popen([sys.executable, "tools/lossy_proxy.py", "--vehicle-port",
+                              str(vport), "--vehicle-addr", "127.0.0.1:9", "--companion-port",
+                              str(cport), "--down", "loss=0.33", "--seed", "4"], cwd=root,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    srv = c = None
+    try:
+        assert "lossy proxy" in proxy.stdout.readline()
+        c = Client(cport)
+        srv, _ = start_vehicle(port=vport)
+        c.heartbeat()
+        assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, LPN, 10_000) == 0  # 100 Hz, through it
+        got = []
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            m = c.recv("LOCAL_POSITION_NED", timeout=0.5)
+            if m is not None:
+                got.append(m.time_boot_ms)
+        sent = (got[-1] - got[0]) / 10 + 1
+        assert 0.55 < len(got) / sent < 0.8  # a third lost (binomial, n ~ 300)
+    finally:
+        if c is not None:
+            c.close()
+        if srv is not None:
+            srv.stop()
+        proxy.send_signal(signal.SIGTERM)
+        out, _ = proxy.communicate(timeout=30)
+    assert proxy.returncode == 0, out
+    down = next(line for line in out.splitlines() if line.startswith("down:"))
+    assert "'loss':" in down
