@@ -502,6 +502,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._phase_wall = self._t0
         self._cmd = None  # the command the phase waits on
         self._cmd_tries = 0
+        self._unheard = False  # the phase's command went unanswered after every try
+        self._asked_again = 0  # how often the phase's command was sent again for that
         self._confirm_since = None  # judge state only from heartbeats after this wall time
         self._hb_request_wall = 0.0
         self._held = None  # lockstep: the sample whose answer waits on the vehicle

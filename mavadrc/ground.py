@@ -159,13 +159,15 @@ class GroundPhases:
         else:
             self._idle(s)
         c = self._cmd
-        if c is not None and c.done and self._refused_answer(c, "the mode change", "its mode"):
-            if c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
-                self._cmd_tries += 1  # PX4: the setpoint stream is not seen yet
-                self._retry_t = s.t + 0.3
-            else:
-                raise FlightError(f"the vehicle refused {self.seq.control_mode}: "
-                                  f"{result_name(c.result)}{self._because()}")
+        if c is not None and c.done:
+            self._unheard = c.result == TIMEOUT
+            if self._refused_answer(c, "the mode change", "its mode"):
+                if c.result == M.MAV_RESULT_TEMPORARILY_REJECTED and self._cmd_tries < 5:
+                    self._cmd_tries += 1  # PX4: the setpoint stream is not seen yet
+                    self._retry_t = s.t + 0.3
+                else:
+                    raise FlightError(f"the vehicle refused {self.seq.control_mode}: "
+                                      f"{result_name(c.result)}{self._because()}")
         if self._retry_t is not None and s.t >= self._retry_t - 1e-9:
             self._retry_t = None
             self._cmd = self.seq.request_control(self.link)
@@ -178,16 +180,23 @@ class GroundPhases:
             if self.takeover_in_air:
                 return self._start_mission(s)
             self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            self._unheard, self._asked_again = False, 0
             self._enter("arming", s)
+        elif self._ask_again(hb, f"not in {self.seq.control_mode}"):
+            self._cmd = self.seq.request_control(self.link)
 
     def _ph_arming(self, s):
         self._idle(s)
         c = self._cmd
-        if c is not None and c.done and self._refused_answer(c, "the arm command",
-                                                             "whether it armed"):
-            raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
-                              f"{self._because()}")
+        if c is not None and c.done:
+            self._unheard = c.result == TIMEOUT
+            if self._refused_answer(c, "the arm command", "whether it armed"):
+                raise FlightError(f"the vehicle refused to arm: {result_name(c.result)}"
+                                  f"{self._because()}")
         hb = self._fresh()
+        if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and \
+                self._ask_again(hb, "not armed"):
+            self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         if hb is not None and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
             self._confirm_since = None
             if self.takeover:  # armed on the ground already: the motors are up
@@ -196,6 +205,23 @@ class GroundPhases:
             self.say(f"armed; motors start in {self.motor_delay:g} s "
                      f"({self.sources.get('motor_delay', 'default')}), then the spool-up")
             self._enter("spoolup", s)  # from the next sample: one setpoint per sample
+
+    #: how often a command that went unanswered after every try is sent again in one phase
+    ASK_AGAIN = 3
+
+    def _ask_again(self, hb, state):
+        """Whether to send the phase's command again: it went unanswered after every try, and
+        the heartbeat asked for since shows the vehicle ``state`` (the command was lost on the
+        way: on a link that loses a fifth of the datagrams each way, three tries are all lost
+        once in 125 flights).  At most :attr:`ASK_AGAIN` times a phase."""
+        if hb is None or not self._unheard or self._cmd is not None or \
+                self._asked_again >= self.ASK_AGAIN:
+            return False
+        self._unheard = False
+        self._asked_again += 1
+        self.say(f"{state} by its heartbeat after an unanswered command: sending it again "
+                 f"({self._asked_again} of {self.ASK_AGAIN})")
+        return True
 
     def _refused_answer(self, c, what, question):
         """The answer to a command that changes the vehicle's state: accepted, it is to be seen
