@@ -93,7 +93,7 @@ class EmbeddedVehicle:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
         if mission.height_drift_mps:
             cmd += ["--height-drift", repr(mission.height_drift_mps)]
-        if mission.clock_rate != 1.0 and not lockstep:  # in lockstep the setpoints are the clock
+        if mission.clock_rate != 1.0:  # real time only (fly refuses it in lockstep)
             cmd += ["--clock-rate", repr(mission.clock_rate)]
         if math.isnan(mission.heading_deg):
             cmd += ["--heading", "random"]  # drawn from --seed, as the fast path draws it

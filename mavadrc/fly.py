@@ -115,6 +115,9 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
     hover, source = mission.hover_thrust, mission.hover_source
     check_options(connect=connect, lockstep=lockstep, seed=seed, wind=wind, timeout=timeout,
                   sysid=sysid, out=out)
+    if lockstep and connect is None and mission.clock_rate != 1.0:
+        raise UsageError(f"--lockstep: the mission's sim.clock_rate ({mission.clock_rate:g}) is "
+                         "for real time; in lockstep the setpoints are the vehicle's clock")
     # the mission as flown: every override applied (the record holds this one)
     mission = dataclasses.replace(mission, seed=mission.seed if seed is None else seed,
                                   wind=mission.wind if wind is None else wind)

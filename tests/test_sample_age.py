@@ -378,11 +378,15 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     assert link["clock_skew"] == pytest.approx(-0.05, abs=0.005)
     assert -0.002 < link["sample_age_ms_median"] / 1e3 < 0.006
     assert link["sample_age_ms_p99"] / 1e3 < 0.015
-    # the fast path has one clock: it refuses the key rather than ignore it
+    # the fast path has one clock, and in lockstep the setpoints are the clock: both refuse the
+    # key rather than ignore it
+    from mavadrc.fly import UsageError
     from mavadrc.inprocess import fly_inprocess
 
     with pytest.raises(ValueError, match="clock_rate"):
         fly_inprocess(mission)
+    with pytest.raises(UsageError, match="clock_rate"):
+        fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False)
 
 
 def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitted(monkeypatch):
