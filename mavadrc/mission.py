@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.sensors import WANDER_CORNER_HZ
+from sim.sensors import CLOCK_RATES, WANDER_CORNER_HZ
 from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
 
 from . import trajectories as T
@@ -673,7 +673,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.wander_corner_hz = s.number("wander_corner_hz", WANDER_CORNER_HZ, ge=0.01, le=5.0)
         m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
         m.height_drift_mps = s.number("height_drift_mps", 0.0, ge=-0.5, le=0.5)
-        m.clock_rate = s.number("clock_rate", 1.0, ge=0.5, le=2.0)
+        m.clock_rate = s.number("clock_rate", 1.0, ge=CLOCK_RATES[0], le=CLOCK_RATES[1])
         if s.has("link"):
             from sim.link_model import link_from_section
             link = link_from_section(s.section("link"))

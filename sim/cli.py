@@ -9,7 +9,7 @@ import threading
 
 from .link_flags import add_link_arguments, link_from_args
 from .mavlink.link import LOOPBACK, PortInUse, bind_udp, default_ports, read_signing_key
-from .sensors import TYPICAL_NOISE, WANDER_CORNER_HZ
+from .sensors import CLOCK_RATES, TYPICAL_NOISE, WANDER_CORNER_HZ
 from .server import SitlServer
 
 
@@ -230,8 +230,9 @@ def make_servers(args):
     if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
         raise SystemExit(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
     clock_rate = getattr(args, "clock_rate", 1.0)
-    if not (math.isfinite(clock_rate) and 0.5 <= clock_rate <= 2.0):
-        raise SystemExit(f"--clock-rate must be 0.5 to 2 (got {clock_rate!r})")
+    lo, hi = CLOCK_RATES
+    if not (math.isfinite(clock_rate) and lo <= clock_rate <= hi):
+        raise SystemExit(f"--clock-rate must be {lo:g} to {hi:g} (got {clock_rate!r})")
     if clock_rate != 1.0 and args.lockstep:
         raise SystemExit("mavadrc sitl: --clock-rate is for real time; in lockstep the "
                          "setpoints are the clock")

@@ -10,7 +10,7 @@ import numpy as np
 from mavadrc.control._jit import jit
 from sim.physics import IX_POS, IX_Q, IX_VEL, IX_W, NX
 
-__all__ = ["Sensors", "TYPICAL_NOISE", "WANDER_CORNER_HZ", "measure_into", "perturb",
+__all__ = ["CLOCK_RATES", "Sensors", "TYPICAL_NOISE", "WANDER_CORNER_HZ", "measure_into", "perturb",
            "wander_band_rms"]
 
 _NOISE_KEYS = ("position", "velocity", "attitude", "rates")
@@ -25,6 +25,10 @@ TYPICAL_NOISE = {"position": 0.01, "velocity": 0.02, "attitude": 0.002, "rates":
 #: between 0.3 and 0.6, 3-5 between 0.6 and 1, 3 between 1 and 2 Hz (this model: 49, 11, 3.6,
 #: 1.8 at 0.06 m), its velocity the position's rate (16-33 mm/s between 0.3 and 0.6 Hz measured)
 WANDER_CORNER_HZ = 0.15
+
+#: the rates (least, most) the vehicle's clock, the clock of every time it reports, may run at
+#: against the wall clock in real time (``--clock-rate``, ``sim: {clock_rate}``)
+CLOCK_RATES = (0.5, 2.0)
 
 # columns of one physics step's noise in :meth:`Sensors.draws`, in the order measure draws them
 N_POS = 0  # 3: position (m)

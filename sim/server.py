@@ -45,6 +45,7 @@ from .mavlink.realtime import RealtimeLink
 from .mavlink.receiver import Receiver
 from .mavlink.streams import Streams
 from .mavlink.timesync import Timesync
+from .sensors import CLOCK_RATES
 
 log = logging.getLogger("mavadrc.sitl")
 
@@ -68,8 +69,9 @@ class SitlServer:
         # in real time the vehicle's clock (its time_boot_ms, TIMESYNC, streams) runs at this
         # share of the wall clock: below 1 as a simulator's that cannot keep up runs (PX4 SITL's
         # lockstep clock ran 1.35 % slow on 2 cores, 2026-12-03)
-        if not (math.isfinite(clock_rate) and 0.5 <= clock_rate <= 2.0):
-            raise ValueError(f"clock_rate must be 0.5 to 2 (got {clock_rate!r})")
+        lo, hi = CLOCK_RATES
+        if not (math.isfinite(clock_rate) and lo <= clock_rate <= hi):
+            raise ValueError(f"clock_rate must be {lo:g} to {hi:g} (got {clock_rate!r})")
         self.clock_rate = float(clock_rate)
         # the link model (sim.link_model.LinkModel): in real time on the datagrams of the links
         # in ``link_on`` (_impair), in lockstep on the control samples and setpoints

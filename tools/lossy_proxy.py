@@ -58,7 +58,7 @@ def main(argv=None):
                         "starts (default 4000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the link's draws")
     args = p.parse_args(argv)
-    _address(args.vehicle_addr)
+    vehicle_addr = _address(args.vehicle_addr)
     ways = {flag: parse_way(flag, text)
             for flag, text in (("--down", args.down), ("--up", args.up)) if text is not None}
     blackouts = []
@@ -73,7 +73,7 @@ def main(argv=None):
         blackouts.append((start, duration))
     try:
         link = LossyLink(args.companion_port, vehicle_port=args.vehicle_port, seed=args.seed,
-                         vehicle_addr=_address(args.vehicle_addr))
+                         vehicle_addr=vehicle_addr)
     except OSError as e:
         raise SystemExit(f"UDP port {args.vehicle_port}: {e.strerror or e} (is another program "
                          "bound to it? --vehicle-port chooses another)") from None
