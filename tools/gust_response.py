@@ -9,7 +9,6 @@ the tilt the firmware answers with.
 """
 
 import argparse
-import math
 from pathlib import Path
 
 import matplotlib
