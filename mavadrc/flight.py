@@ -44,7 +44,7 @@ import numpy as np
 
 from .console import Console, Terminated, interrupt_reason
 from .control import PositionController
-from .control.geometry import GRAVITY
+from .control.geometry import GRAVITY, thrust_for_tilt
 from .control.rotations import level_quat
 from .failsafe import Failsafes
 from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, TAKEOFF_RAMP_PER_S,
@@ -243,6 +243,11 @@ def _safe_axes(gains, axes):
 #: gives it wc 1.09 / wo 5.45.  The bundled vehicles (0.125 s) get wc 2.0-2.2.
 MARGIN_SHARE = 0.75
 
+
+#: ``thrust_tilt: measured`` sizes the thrust for the vehicle's reported tilt while its newest
+#: ATTITUDE is at most this much older (s) than the position sample (PX4 and ArduCopter stream
+#: it at 50-100 Hz); an older one, or none, leaves the thrust as computed
+ATTITUDE_FRESH_S = 0.1
 
 #: the drag learnt this long (s) before the identify segment is fitted again with it known
 REFINE_AFTER_S = 6.0
@@ -1239,8 +1244,19 @@ class Flight(Preflight, GroundPhases, Failsafes):
             if told is not None:
                 self.ctrl.tilt_limit = told
         self._last_thrust = thrust
+        thrust = self._thrust_for_tilt(s, q, thrust)
         self._send(s.t, q, thrust * self.seq.thrust_factor(self))
         return q, thrust
+
+    def _thrust_for_tilt(self, s, q, thrust):
+        """``thrust`` sized for the tilt the vehicle reports (``thrust_tilt: measured``,
+        :func:`~mavadrc.control.geometry.thrust_for_tilt`) when its newest ATTITUDE is at most
+        :data:`ATTITUDE_FRESH_S` older than sample ``s``; else as computed."""
+        if self.m.controller.thrust_tilt != "measured" or self._attitude_ms is None or \
+                s.t - self._attitude_ms / 1000.0 > ATTITUDE_FRESH_S:
+            return thrust
+        return thrust_for_tilt(thrust, float(q[0]), float(q[1]), float(q[2]), float(q[3]),
+                               self.cos_tilt, self.m.controller.thrust_max)
 
     def _control_update(self, s, r, hold, aref=None):
         if hold:
@@ -1678,6 +1694,8 @@ def controller_record(spec, kind, gains):
     limits and every gain resolved (plain lists and numbers, for YAML and JSON)."""
     rec = {"type": kind, "rate_hz": spec.rate_hz, "tilt_max_deg": spec.tilt_max_deg,
            "thrust_min": spec.thrust_min, "thrust_max": spec.thrust_max}
+    if spec.thrust_tilt != "commanded":
+        rec["thrust_tilt"] = spec.thrust_tilt
     for k, v in (gains or {}).items():
         rec[k] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
     return rec

@@ -478,7 +478,8 @@ def identification_mission(mission, calm=True):
     ctrl = ControllerSpec(kind="ladrc", name="identification", rate_hz=spec.rate_hz,
                           gains=identification_gains(learn=False),
                           tilt_max_deg=spec.tilt_max_deg,
-                          thrust_min=spec.thrust_min, thrust_max=spec.thrust_max)
+                          thrust_min=spec.thrust_min, thrust_max=spec.thrust_max,
+                          thrust_tilt=spec.thrust_tilt)
     segments = [("takeoff", {"altitude": ALTITUDE, "speed": 0.5}, None),
                 ("identify", {}, None)]
     return dataclasses.replace(mission, name=f"identification ({mission.name})",
@@ -515,8 +516,8 @@ def identify_inprocess(mission, seed=None):
     seed = m.seed if seed is None else seed
     link = m.link
     key = (repr(m.vehicle), m.autopilot, m.attitude_controller, m.controller.rate_hz,
-           m.controller.tilt_max_deg, m.hover_thrust, m.noise, m.wander, m.wander_corner_hz,
-           m.sensor_latency_s, repr(link), m.heading_deg,
+           m.controller.tilt_max_deg, m.controller.thrust_tilt, m.hover_thrust, m.noise,
+           m.wander, m.wander_corner_hz, m.sensor_latency_s, repr(link), m.heading_deg,
            seed if (m.noise or m.wander or link is not None) else None)
     if key not in _CACHE:
         run = fly_inprocess(m, seed=seed)
@@ -661,7 +662,8 @@ def flight_mission(mission, altitude=ALTITUDE):
     spec = mission.controller
     ctrl = ControllerSpec(kind="ladrc", name="identification", rate_hz=spec.rate_hz,
                           gains={"input_lag": "auto"}, tilt_max_deg=spec.tilt_max_deg,
-                          thrust_min=spec.thrust_min, thrust_max=spec.thrust_max)
+                          thrust_min=spec.thrust_min, thrust_max=spec.thrust_max,
+                          thrust_tilt=spec.thrust_tilt)
     segments = [("takeoff", {"altitude": altitude, "speed": 0.5}, None),
                 ("identify", {}, None), ("land", {"speed": 0.5}, None)]
     return dataclasses.replace(mission, name=f"identification ({mission.name})",

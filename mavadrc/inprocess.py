@@ -164,7 +164,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 tau_ext, dt, tick0, att_div, pos_div, pos_dt, per, xm, noise, sig, k0, k_end,
                 delivered, applied, lag, stimes, t0, spos, svel, syaw, spq, spt, refs, crefs, Sc,
                 Pc, Mc, INc, latency, oracle, limits, max_gap, origin, rules, lifted, yaw_offset,
-                log):
+                log, tilt_measured):
     """Fly the mission from period ``k0`` (periods count from the arming) to at most ``k_end``.
 
     Each period ``k``: the vehicle takes its sample of its estimate ``xm`` (the truth ``x``
@@ -187,6 +187,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     disturbance; the reference's heading is offset by ``yaw_offset``, turned to 0 at
     ``rules[2]`` (:data:`GROUND_RULES`).  The run ends after the row whose time reaches the
     last reference.  Fills ``log`` row by row; returns (rows written, status, periods flown).
+    ``tilt_measured``: the thrust is sized for the vehicle's tilt by its estimate of the period
+    before (:func:`mavadrc.control.geometry.thrust_for_tilt`; the flight's newest ATTITUDE when
+    a sample comes: it follows the position sample in a period's messages).
     """
     pos = np.empty(3)
     vel = np.empty(3)
@@ -204,6 +207,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     j = 0
     nrows = refs.shape[0]
     prev = -1.0
+    for i in range(4):
+        e[i] = xm[phys.IX_Q + i]
+    cos_tilt = 1.0 - 2.0 * (e[1] * e[1] + e[2] * e[2])  # (the first sample: its own period's)
     for k in range(k0, k_end):
         _store(xm, k + lag, spos, svel, syaw, e, eul)
         s = delivered[k]
@@ -262,7 +268,11 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             for i in range(4):
                 spq[k, i] = _f32(out[G.O_Q + i])
                 row[L_Q + i] = spq[k, i]
-            spt[k] = _f32(out[G.O_THRUST])
+            thrust = out[G.O_THRUST]
+            if tilt_measured:
+                thrust = G.thrust_for_tilt(thrust, out[G.O_Q], out[G.O_Q + 1], out[G.O_Q + 2],
+                                           out[G.O_Q + 3], cos_tilt, Mc[G.M_THR_MAX])
+            spt[k] = _f32(thrust)
             row[L_THRUST] = spt[k]
             # the flight's safety checks, on the sample, after logging it
             if gap:
@@ -281,6 +291,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 f_ext, tau_ext, dt, tick - tick0, per, tick, att_div, pos_div, pos_dt, scratch,
                 ws)
         tick += per
+        cos_tilt = math.cos(eul[0]) * math.cos(eul[1])  # this period's, for the next sample
         if j == nrows:
             return j, STATUS_OK, k - k0 + 1
     return j, STATUS_LINK, k_end - k0
@@ -525,7 +536,8 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
         *state, packed.params, packed.state, eta[sent * per:], *wind_out, dt, v.tick, *timing,
         xm, noise[sent * per:], sig, sent, n, delivered, applied, lag, stimes, t0, spos, svel,
         syaw, spq, spt, ref, cref, ctrl._S, Pc, Mc, ctrl._IN, latency, oracle, limits,
-        sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset, log)
+        sf.max_gap_s, origin, GROUND_RULES, False, yaw_offset, log,
+        spec.thrust_tilt == "measured")
     v.ran(flown * per)
     ctrl.adopt_thrust_of(Mc)  # what the run learnt, read as the flight reads it
     learnt = ctrl.hover_thrust_estimate if ctrl.learns_thrust else None

@@ -33,6 +33,8 @@ from .control.position import DRAG_MAX, THRUST_ESTIMATE_S
 from .learn import TAU_S as DRAG_LEARN_S
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
+#: what a controller's ``thrust_tilt`` may say (:class:`ControllerSpec`)
+THRUST_TILTS = ("commanded", "measured")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
 #: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
 FINAL_HEIGHT = 0.5
@@ -50,6 +52,10 @@ class ControllerSpec:
     tilt_max_deg: float = 35.0
     thrust_min: float = 0.05
     thrust_max: float = 1.0
+    #: the tilt the thrust is sized for: the one commanded (its magnitude is the specific force
+    #: asked for), or the one the vehicle reports now ("measured": its vertical part is the one
+    #: asked for, whatever the attitude loop has reached; geometry.thrust_for_tilt)
+    thrust_tilt: str = "commanded"
 
 
 @dataclass
@@ -384,6 +390,7 @@ def _read_controller(sec, kinds=None):
     c.tilt_max_deg = sec.number("tilt_max_deg", 35.0, gt=0.0, lt=90.0)
     c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
     c.thrust_max = sec.number("thrust_max", 1.0, gt=0.0, le=1.0)
+    c.thrust_tilt = sec.string("thrust_tilt", "commanded", choices=THRUST_TILTS)
     per_axis = ("wc", "wo", "b0", "kp", "kd", "r0", "h0", "r", "c", "h1", "delta", "accel_max")
     for key in per_axis:
         if sec.has(key):
