@@ -253,6 +253,8 @@ def controller_yaml(result):
                 else ""),
              f"name: {result['controller']}", f"type: {s.kind}", f"rate_hz: {s.rate_hz:g}",
              f"tilt_max_deg: {s.tilt_max_deg:g}"]
+    if s.thrust_tilt != "commanded":  # flown so while tuned: the gains are for it
+        lines.append(f"thrust_tilt: {s.thrust_tilt}")
     for k, v in s.gains.items():
         if isinstance(v, (tuple, list)):
             lines.append(f"{k}: [{', '.join(f'{float(a):.4g}' for a in v)}]")

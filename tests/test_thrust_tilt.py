@@ -124,3 +124,17 @@ def test_a_thrust_tilt_it_does_not_know_names_the_file_and_field(tmp_path):
                                                "controller:\n  thrust_tilt: sideways\n"))
     with pytest.raises(ConfigError, match=r"bad\.yaml.*thrust_tilt"):
         load_mission(path)
+
+
+def test_tune_writes_the_thrust_tilt_its_gains_were_tuned_with():
+    import yaml
+
+    from mavadrc.mission import ControllerSpec
+    from mavadrc.tune import controller_yaml
+    for tilt in ("measured", "commanded"):
+        spec = ControllerSpec(kind="ladrc", thrust_tilt=tilt, gains={"wc": (2.0, 2.0, 3.0)})
+        result = {"spec": spec, "improved": True, "cost_m": 0.01, "start_cost_m": 0.02,
+                  "scenarios": ["a"], "seeds": [0], "evaluations": 4, "bounds": {},
+                  "on_bounds": [], "controller": "LADRC"}
+        entry = yaml.safe_load(controller_yaml(result))
+        assert entry.get("thrust_tilt", "commanded") == tilt
