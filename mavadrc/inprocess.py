@@ -207,9 +207,9 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
     j = 0
     nrows = refs.shape[0]
     prev = -1.0
-    for i in range(4):
-        e[i] = xm[phys.IX_Q + i]
-    cos_tilt = 1.0 - 2.0 * (e[1] * e[1] + e[2] * e[2])  # (the first sample: its own period's)
+    cos_tilt = 1.0
+    if tilt_measured:  # (the first sample: its own period's)
+        cos_tilt = 1.0 - 2.0 * (xm[phys.IX_Q + 1] ** 2 + xm[phys.IX_Q + 2] ** 2)
     for k in range(k0, k_end):
         _store(xm, k + lag, spos, svel, syaw, e, eul)
         s = delivered[k]
@@ -291,7 +291,8 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
                 f_ext, tau_ext, dt, tick - tick0, per, tick, att_div, pos_div, pos_dt, scratch,
                 ws)
         tick += per
-        cos_tilt = math.cos(eul[0]) * math.cos(eul[1])  # this period's, for the next sample
+        if tilt_measured:  # this period's, for the next sample
+            cos_tilt = math.cos(eul[0]) * math.cos(eul[1])
         if j == nrows:
             return j, STATUS_OK, k - k0 + 1
     return j, STATUS_LINK, k_end - k0
