@@ -35,6 +35,7 @@ in an exit that says its last known state.  ``summary.json`` is always written.
 """
 
 import collections
+import gc
 import math
 import sys
 import time
@@ -248,6 +249,59 @@ MARGIN_SHARE = 0.75
 #: ATTITUDE is at most this much older (s) than the position sample (PX4 and ArduCopter stream
 #: it at 50-100 Hz); an older one, or none, leaves the thrust as computed
 ATTITUDE_FRESH_S = 0.1
+
+
+def _freeze_heap():
+    """Collect the heap once and move what survives (the modules, numba's and scipy's state,
+    the mission: several hundred thousand objects) out of the collector's sight, before the
+    flight's loop begins.  A full collection walks every object the collector tracks; over
+    that heap it stopped the loop for 70-100 ms on the shared 2-core machine, and once
+    mid-flight on PX4 SIH the samples' age rose to 0.1 s.  Frozen, a collection walks only
+    what the flight made since.  :meth:`Flight.run` unfreezes the heap when the flight ends."""
+    gc.collect()
+    gc.freeze()
+
+
+def built(spec, hover, kind, rate, gains):
+    """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin."""
+    ctrl = make_controller(spec, hover_thrust=hover, kind=kind, rate_hz=rate, gains=gains)
+    return ctrl, delay_margin(ctrl)
+
+
+def _run_once(ctrl):
+    """Every kernel of ``ctrl``'s step run once (compiled or loaded now, not mid-flight); it is
+    left at rest, waiting for its first sample."""
+    ctrl.reset(np.zeros(3))
+    ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
+    ctrl.reset()
+
+
+def fit_and_make(d, windows, flown, spec, kind, rate, hover, designed_for, drag=None):
+    """The fit of an identify segment's samples ``d`` (rows: t, the acceleration applied, the
+    velocity, the sample's age; ``windows`` and ``flown`` as :func:`fit_flight` takes them;
+    ``drag``: known per axis, else fitted) and, if it holds, the controller of ``kind`` that
+    ``spec`` makes with it at ``rate`` (``designed_for``: the lags the spec's own gains were
+    chosen for, :func:`design_lag`): (record, controller or None, gains, delay margin).  The
+    record says how long the fit took (``fit_s``) and the whole of it, the controller and its
+    margins made (``made_in_s``).  Whole in the fits' own process in real time: the margins
+    are a few hundred ms of kernels that would hold the loop's interpreter too."""
+    t0 = time.perf_counter()
+    rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], windows, flown, drag=drag)
+    rec["fit_s"] = rec["made_in_s"] = round(time.perf_counter() - t0, 3)
+    if failure_text(rec) is not None:
+        return rec, None, None, None
+    gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec),
+                          drag=observer_drag(rec), designed_for=designed_for,
+                          dead_time=observer_dead_time(rec, spec))
+    ctrl, margin = built(spec, hover, kind, rate, gains)
+    rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, spec))
+    # what the rules that slow the gains (and Flight._identified's warning) judge: the same
+    # gains with one lag of the 63 % time, as they were calibrated
+    one = {k: v for k, v in gains.items() if k not in ("input_dead_time", "input_lags")}
+    rec["delay_margin_one_lag_s"] = margin_record(delay_margin(make_controller(
+        spec, hover_thrust=0.5, kind=kind, rate_hz=rate, gains=one)))
+    rec["made_in_s"] = round(time.perf_counter() - t0, 3)
+    return rec, ctrl, gains, margin
 
 #: the drag learnt this long (s) before the identify segment is fitted again with it known
 REFINE_AFTER_S = 6.0
@@ -485,6 +539,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._id_span = None  # (first window's start, last window's end), mission time
         self._id_data = []
         self._id_job = None  # the fit, running in a thread (real time)
+        self._fitter = None  # the fits' own process (real time; mavadrc.fitworker)
         self.summary = None
         self.truth = None  # a simulator's true state, when it sends one (mavadrc.truth)
         self.context = {}  # what the caller adds to the record (command line, versions, ...)
@@ -604,18 +659,24 @@ class Flight(Preflight, GroundPhases, Failsafes):
         link = self.link
         link.on_text = self.on_text
         try:
-            self._design_lag_first()
-            self._connect()
-            self._setup()
-            self._loop()
-        except KeyboardInterrupt as exc:
-            self.supervisor.report("interrupted", interrupt_reason(exc))
-            if self.link.armed:
-                self._loop()  # the flight goes on under the supervisor: hold, then land
-        except (FlightError, LinkError) as exc:
-            self.supervisor.report("refused", str(exc))
-            self.summary = self._finish()
-            raise
+            try:
+                self._design_lag_first()
+                self._connect()
+                self._setup()
+                _freeze_heap()
+                self._loop()
+            except KeyboardInterrupt as exc:
+                self.supervisor.report("interrupted", interrupt_reason(exc))
+                if self.link.armed:
+                    self._loop()  # the flight goes on under the supervisor: hold, then land
+            except (FlightError, LinkError) as exc:
+                self.supervisor.report("refused", str(exc))
+                self.summary = self._finish()
+                raise
+        finally:
+            gc.unfreeze()
+            if self._fitter is not None:
+                self._fitter.close()
         self.summary = self._finish()
         if self._error is not None:
             raise FlightError(self._error)
@@ -677,12 +738,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """The controller of ``kind`` with ``gains`` at the rate flown, its delay margin
         computed and every kernel of its step run once (compiled now, not mid-flight); at rest,
         waiting for its first sample."""
-        ctrl = make_controller(self.m.controller, hover_thrust=hover, kind=kind,
-                               rate_hz=self.rate, gains=gains)
-        margin = delay_margin(ctrl)
-        ctrl.reset(np.zeros(3))
-        ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
-        ctrl.reset()
+        ctrl, margin = built(self.m.controller, hover, kind, self.rate, gains)
+        _run_once(ctrl)
         return ctrl, margin
 
     def _in_doublets(self, time_boot_ms, after=1.0):
@@ -772,30 +829,20 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _identify_fit(self, d, drag=None):
         """The fit of the identify segment's samples ``d`` (``drag``: known per axis, else
-        fitted), and, if it holds, the mission's controller made with it: (record, controller
-        or None, gains, delay margin).  The record says how long the fit took (``fit_s``) and
-        the whole of it, the controller and its margins made (``made_in_s``)."""
-        t0 = time.perf_counter()
-        rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], self._id_windows,
-                         f"in flight, on system {self.link.target_system} "
-                         f"({self.link.autopilot})", drag=drag)
-        rec["fit_s"] = rec["made_in_s"] = round(time.perf_counter() - t0, 3)
-        if failure_text(rec) is not None:
-            return rec, None, None, None
-        gains = resolve_gains(self.m.controller, self.kind,
-                              identified=observer_lag(rec, self.m.controller),
-                              drag=observer_drag(rec), designed_for=self._design_lag(),
-                              dead_time=observer_dead_time(rec, self.m.controller))
-        ctrl, margin = self._build(self.hover, self.kind, gains)
-        rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, self.m.controller))
-        # what the rules that slow the gains (and the warning below) judge: the same gains
-        # with one lag of the 63 % time, as they were calibrated
-        one = {k: v for k, v in gains.items() if k not in ("input_dead_time", "input_lags")}
-        rec["delay_margin_one_lag_s"] = margin_record(delay_margin(make_controller(
-            self.m.controller, hover_thrust=0.5, kind=self.kind, rate_hz=self.rate,
-            gains=one)))
-        rec["made_in_s"] = round(time.perf_counter() - t0, 3)
-        return rec, ctrl, gains, margin
+        fitted), and, if it holds, the mission's controller made with it (:func:`fit_and_make`:
+        in the fits' own process in real time, :mod:`mavadrc.fitworker`), its kernels run once
+        here: (record, controller or None, gains, delay margin)."""
+        job = (d, self._id_windows, f"in flight, on system {self.link.target_system} "
+               f"({self.link.autopilot})", self.m.controller, self.kind, self.rate,
+               self.hover, self._design_lag(), drag)
+        if self._fitter is None:
+            out = fit_and_make(*job)
+        else:
+            out = self._fitter.call(fit_and_make, *job)
+            out[0]["fit_in"] = self._fitter.where
+        if out[1] is not None:
+            _run_once(out[1])
+        return out
 
     def _identified(self, s, ref_vel, rec, ctrl, gains, margin):
         """The identification's result, from sample ``s`` on (``ref_vel``: the reference's

@@ -9,6 +9,7 @@ achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rat
 import time
 
 
+from .fitworker import FitWorker
 from .identify import load_fitting
 from .link import TIMEOUT, FlightError, LinkError, M, result_name
 from .sequence import sequence_for
@@ -40,7 +41,12 @@ class Preflight:
                      "an update; numba caches them: later flights start at once)")
         self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
         if self._identifying():
-            load_fitting()
+            load_fitting()  # here too: where the fits' process cannot start, they run here
+            if not self.lockstep and self._fitter is None:
+                self._fitter = FitWorker()
+                if self._fitter.why_not is not None:
+                    self.say("the input model will be fitted in a thread beside the loop (its "
+                             f"process did not start: {self._fitter.why_not})")
         timeout = self.heartbeat_timeout
         if self._deadline is not None:
             timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))
