@@ -65,6 +65,7 @@ def control_figures():
     }
     fig.update(reference_figures())
     fig.update(identify_figures())
+    fig.update(fit_beside_loop_figures())
     fig["ratio_reference_sample_over_position_controller_ladrc_step"] = (
         fig["reference_sample_us"] / fig["position_controller_ladrc_step_us"])
     try:
@@ -136,7 +137,21 @@ def identify_figures():
            "scipy_lfilter_lags_us": median_us(scipy_lags, 200, 15)}
     fig["ratio_scipy_lfilter_over_identify_lags"] = (fig["scipy_lfilter_lags_us"]
                                                      / fig["identify_lags_us"])
-    # the plant: u doublets from 0.5 s, seen 20 ms late through two 50 ms lags, drag 0.3 /s
+    plant = _doublets_plant(rng)
+    I.load_fitting()
+    t0 = time.perf_counter()
+    rec = I.fit_axis(*plant)
+    fig["identify_fit_axis_s"] = time.perf_counter() - t0
+    if not rec["ok"]:
+        raise RuntimeError(f"the bench's plant was not identified: {rec}")
+    return fig
+
+
+def _doublets_plant(rng):
+    """One axis of doublets for the fit: u from 0.5 s, seen 20 ms late through two 50 ms lags,
+    drag 0.3 /s, a drifting gust, velocity noise 1 cm/s; (t, u, v, start, end)."""
+    from . import identify as I
+
     dt = 0.01
     t = np.arange(0.0, 6.0, dt)
     period = 2 * I.HALF_PERIOD
@@ -149,12 +164,63 @@ def identify_figures():
     for k in range(1, fine.size):
         v[k] = v[k - 1] + (a[k - 1] - 0.3 * v[k - 1] + 0.2 * math.sin(0.9 * fine[k])) * I.FINE_S
     vs = np.interp(t, fine, v) + 0.01 * rng.standard_normal(t.size)
-    I.load_fitting()
-    t0 = time.perf_counter()
-    rec = I.fit_axis(t, u, vs, 0.5, 0.5 + 4 * period)
-    fig["identify_fit_axis_s"] = time.perf_counter() - t0
-    if not rec["ok"]:
-        raise RuntimeError(f"the bench's plant was not identified: {rec}")
+    return t, u, vs, 0.5, 0.5 + 4 * period
+
+
+def _longest_gap_ms(work, period_s=0.002):
+    """The longest pause (ms) of a loop that sleeps ``period_s`` per turn (the control loop
+    waiting on its socket) while ``work`` runs in a thread beside it."""
+    import threading
+
+    done = threading.Event()
+    out = []
+    th = threading.Thread(target=lambda: (out.append(work()), done.set()))
+    last, gap = time.perf_counter(), 0.0
+    th.start()
+    while not done.is_set():
+        time.sleep(period_s)
+        now = time.perf_counter()
+        gap, last = max(gap, now - last), now
+    th.join()
+    if out[0][1] is None:
+        raise RuntimeError("the bench's doublets were not identified beside the loop")
+    return 1e3 * gap
+
+
+def fit_beside_loop_figures():
+    """The identification a real-time flight makes after its doublets (thesis_spiral_wind's, on
+    the bundled Crazyflie in process: the fit and the LADRC made with it, with its margins,
+    :func:`~mavadrc.flight.fit_and_make`) beside a loop that sleeps 2 ms a turn: the loop's
+    longest pause with it in a thread (as flights made it before) and in the fits' own process
+    (:mod:`mavadrc.fitworker`, started and warmed first), each the worst of three."""
+    from . import identify as I
+    from .fitworker import FitWorker
+    from .flight import fit_and_make
+    from .inprocess import L_ACC, L_T, L_VEL, fly_inprocess
+    from .mission import load_mission
+
+    m = load_mission("thesis_spiral_wind")
+    r = fly_inprocess(I.identification_mission(m, calm=True), seed=0)
+    L = r.log
+    d = np.column_stack([L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3],
+                         np.full(len(L), np.nan)])
+    job = (d, I.windows_in(r.phases), "in the bench", m.controller, "ladrc", 100.0, 0.47,
+           I.design_lag(m))
+    fit_and_make(*job)  # its kernels loaded here, as a flight's are before it flies
+    fig = {"fit_beside_loop_thread_longest_gap_ms": max(
+        _longest_gap_ms(lambda: fit_and_make(*job)) for _ in range(3))}
+    worker = FitWorker()
+    try:
+        worker.call(fit_and_make, *job)  # the process up and its kernels loaded
+        fig["fit_beside_loop_process_longest_gap_ms"] = max(
+            _longest_gap_ms(lambda: worker.call(fit_and_make, *job)) for _ in range(3))
+        if worker.where != "process":
+            raise RuntimeError(f"the fits' process did not start: {worker.why_not}")
+    finally:
+        worker.close()
+    fig["ratio_fit_beside_loop_longest_gap_thread_over_process"] = (
+        fig["fit_beside_loop_thread_longest_gap_ms"]
+        / fig["fit_beside_loop_process_longest_gap_ms"])
     return fig
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from mavadrc.bench import sitl_figures
 
-UNITS = ("_us", "_s", "_x_realtime", "_pct", "_pct_of_core")
+UNITS = ("_us", "_ms", "_s", "_x_realtime", "_pct", "_pct_of_core")
 
 
 def test_bench_json_prints_the_control_and_physics_figures():
@@ -22,7 +22,9 @@ def test_bench_json_prints_the_control_and_physics_figures():
                 "position_controller_ladrc_step_us", "attitude_controller_ladrc_step_us",
                 "physics_step_us", "vehicle_step_us", "batch_vehicle_steps_per_s",
                 "reference_sample_us", "reference_sample_many_per_time_us",
-                "identify_lags_us", "scipy_lfilter_lags_us", "identify_fit_axis_s"):
+                "identify_lags_us", "scipy_lfilter_lags_us", "identify_fit_axis_s",
+                "fit_beside_loop_thread_longest_gap_ms",
+                "fit_beside_loop_process_longest_gap_ms"):
         assert math.isfinite(fig[key]) and fig[key] > 0.0, key
     assert all(k.endswith(UNITS) or k.startswith("ratio_") for k in fig)
     for peer, key in (("pyadrc", "pyadrc_statespace_step_us"), ("rotorpy", "rotorpy_step_us")):
