@@ -257,9 +257,14 @@ def _freeze_heap():
     flight's loop begins.  A full collection walks every object the collector tracks; over
     that heap it stopped the loop for 70-100 ms on the shared 2-core machine, and once
     mid-flight on PX4 SIH the samples' age rose to 0.1 s.  Frozen, a collection walks only
-    what the flight made since.  :meth:`Flight.run` unfreezes the heap when the flight ends."""
+    what the flight made since.  Returns whether it froze it (not where the caller's heap was
+    frozen already: that is the caller's to undo); :meth:`Flight.run` then unfreezes it when
+    the flight ends."""
+    if gc.get_freeze_count():
+        return False
     gc.collect()
     gc.freeze()
+    return True
 
 
 def built(spec, hover, kind, rate, gains):
@@ -658,12 +663,13 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """Fly; returns the summary (also written to summary.json, whatever happens)."""
         link = self.link
         link.on_text = self.on_text
+        frozen = False
         try:
             try:
                 self._design_lag_first()
                 self._connect()
                 self._setup()
-                _freeze_heap()
+                frozen = _freeze_heap()
                 self._loop()
             except KeyboardInterrupt as exc:
                 self.supervisor.report("interrupted", interrupt_reason(exc))
@@ -674,7 +680,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 self.summary = self._finish()
                 raise
         finally:
-            gc.unfreeze()
+            if frozen:
+                gc.unfreeze()
             if self._fitter is not None:
                 self._fitter.close()
         self.summary = self._finish()

@@ -124,3 +124,16 @@ def test_a_flight_freezes_the_heap_for_its_loop_and_unfreezes_it_after(tmp_path,
                  "--no-figures", "-q"]) == 0
     assert frozen and frozen[0] > 10000
     assert gc.get_freeze_count() == 0
+
+
+def test_a_heap_the_caller_froze_is_left_to_the_caller():
+    from mavadrc.flight import _freeze_heap
+
+    gc.freeze()
+    try:
+        n = gc.get_freeze_count()
+        assert _freeze_heap() is False and gc.get_freeze_count() == n
+    finally:
+        gc.unfreeze()
+    assert _freeze_heap() is True and gc.get_freeze_count() > 0
+    gc.unfreeze()
