@@ -267,6 +267,20 @@ def _freeze_heap():
     return True
 
 
+#: a sample the controller answers more than this long (s) after it was taken is late: the loop
+#: or the link stalled (a radio's 20-60 ms is not late)
+LATE_S = 0.1
+
+
+def late_warning(ages):
+    """The warning for a flight's samples answered late (``ages``, s, the mission's), or None."""
+    late = [a for a in ages if a > LATE_S]
+    if not late:
+        return None
+    return (f"{len(late)} samples were answered more than {LATE_S:.1f} s after they were taken "
+            f"(the oldest {max(late):.2f} s): the loop or the link stalled, and the controller "
+            "flew on old samples there")
+
 def built(spec, hover, kind, rate, gains):
     """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin."""
     ctrl = make_controller(spec, hover_thrust=hover, kind=kind, rate_hz=rate, gains=gains)
@@ -1603,6 +1617,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "rtt_ms_max": float(rtts.max()) if rtts.size else None,
             "sample_age_ms_median": float(np.median(self.ages) * 1e3) if self.ages else None,
             "sample_age_ms_p99": float(np.percentile(self.ages, 99) * 1e3) if self.ages else None,
+            "sample_age_ms_max": float(max(self.ages) * 1e3) if self.ages else None,
+            "samples_late": int(sum(a > LATE_S for a in self.ages)),
             # how much faster the vehicle's clock ran than ours (TIMESYNC; a simulator's runs
             # slow when it cannot keep up): None in lockstep, where the ages come from its clock
             "clock_skew": None if self.lockstep or self.link.timesync.offset_ns is None
@@ -1679,6 +1695,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 self.say(f"warning: {text}")
                 summary["warnings"].append(text)
             self._margin_outcome(summary["warnings"], osc)
+        text = late_warning(self.ages)
+        if text is not None:
+            self.say(f"warning: {text}")
+            summary["warnings"].append(text)
         if self.latency:
             lat = np.asarray(self.latency) * 1e3
             summary["latency_p50_ms"] = float(np.percentile(lat, 50))

@@ -21,6 +21,7 @@ Claims proved here:
 import dataclasses
 import math
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ from mavadrc.control import PositionController  # noqa: E402
 from mavadrc.control import kernels as K  # noqa: E402
 from mavadrc.control.channels import han_params, ladrc_params  # noqa: E402
 from mavadrc.experiment import experiment_from_text, load_experiment, run_inprocess  # noqa: E402
-from mavadrc.flight import make_controller  # noqa: E402
+from mavadrc.flight import late_warning, make_controller  # noqa: E402
 from mavadrc.inprocess import L_POS  # noqa: E402
 from mavadrc.margin import delay_margin  # noqa: E402
 from mavadrc.mission import ControllerSpec  # noqa: E402
@@ -378,6 +379,8 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     assert link["clock_skew"] == pytest.approx(-0.05, abs=0.005)
     assert -0.002 < link["sample_age_ms_median"] / 1e3 < 0.006
     assert link["sample_age_ms_p99"] / 1e3 < 0.015
+    assert link["samples_late"] == 0 and link["sample_age_ms_max"] / 1e3 < 0.1
+    assert not any("answered more than" in w for w in summary["warnings"])
     # the fast path has one clock, and in lockstep the setpoints are the clock: both refuse the
     # key rather than ignore it
     from mavadrc.fly import UsageError
@@ -388,6 +391,42 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     with pytest.raises(UsageError, match="clock_rate"):
         fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False)
 
+
+
+def test_a_loop_that_stalls_says_how_late_it_answered(tmp_path, monkeypatch):
+    """In real time a companion whose loop stops 0.3 s once (as a fit holding the interpreter
+    stopped it on PX4 SIH) answers the samples that queued meanwhile late: the summary counts
+    them and says how old the oldest was, and warns, where a flight that kept up (above) has
+    none late."""
+    from short_flights import short_mission
+
+    import mavadrc.flight as F
+    from mavadrc.fly import fly
+
+    handle = F.Flight._on_sample
+    stalled = []
+
+    def stalling(self, s):
+        if self.phase == "mission" and not stalled and self.steps > 100:
+            stalled.append(s.t)
+            time.sleep(0.3)
+        return handle(self, s)
+
+    monkeypatch.setattr(F.Flight, "_on_sample", stalling)
+    mission = short_mission(tmp_path, hover=3)
+    summary, _ = fly(mission, out=tmp_path, figures=False, progress=False, timeout=90.0)
+    assert stalled and summary["landed"], summary["aborted"]
+    link = summary["link"]
+    assert 0.25 < link["sample_age_ms_max"] / 1e3 < 0.5
+    assert link["samples_late"] >= 5
+    assert any(f"{link['samples_late']} samples were answered more than 0.1 s" in w
+               for w in summary["warnings"])
+
+
+def test_the_late_warning_counts_only_ages_past_a_tenth_of_a_second():
+    assert late_warning([0.0, 0.02, 0.06, 0.1]) is None
+    text = late_warning([0.0, 0.15, 0.31, 0.05])
+    assert text.startswith("2 samples were answered more than 0.1 s") and "0.31 s" in text
 
 def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitted(monkeypatch):
     """Until the line is fitted the companion asks every 0.25 s (it is fitted a second after
