@@ -196,16 +196,11 @@ def fit_beside_loop_figures():
     from . import identify as I
     from .fitworker import FitWorker
     from .flight import fit_and_make
-    from .inprocess import L_ACC, L_T, L_VEL, fly_inprocess
     from .mission import load_mission
 
     m = load_mission("thesis_spiral_wind")
-    r = fly_inprocess(I.identification_mission(m, calm=True), seed=0)
-    L = r.log
-    d = np.column_stack([L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3],
-                         np.full(len(L), np.nan)])
-    job = (d, I.windows_in(r.phases), "in the bench", m.controller, "ladrc", 100.0, 0.47,
-           I.design_lag(m))
+    d, windows = I.samples_inprocess(I.identification_mission(m, calm=True), seed=0)
+    job = (d, windows, "in the bench", m.controller, "ladrc", 100.0, 0.47, I.design_lag(m))
     fit_and_make(*job)  # its kernels loaded here, as a flight's are before it flies
     fig = {"fit_beside_loop_thread_longest_gap_ms": max(
         _longest_gap_ms(lambda: fit_and_make(*job)) for _ in range(3))}

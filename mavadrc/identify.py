@@ -511,7 +511,6 @@ _CACHE = {}
 def identify_inprocess(mission, seed=None):
     """Fly :func:`identification_mission` on the in-process fast path and fit it: the record of
     :func:`fit` for the vehicle ``mission`` flies (cached per vehicle setting)."""
-    from .inprocess import L_ACC, L_AGE, L_T, L_VEL, fly_inprocess
     m = identification_mission(mission)
     seed = m.seed if seed is None else seed
     link = m.link
@@ -520,13 +519,22 @@ def identify_inprocess(mission, seed=None):
            m.wander, m.wander_corner_hz, m.sensor_latency_s, repr(link), m.heading_deg,
            seed if (m.noise or m.wander or link is not None) else None)
     if key not in _CACHE:
-        run = fly_inprocess(m, seed=seed)
-        L = run.log
-        windows = windows_in(run.phases)
-        rec = fit_flight(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3], L[:, L_AGE],
-                         windows, "in process, on the bundled vehicle")
+        d, windows = samples_inprocess(m, seed)
+        rec = fit_flight(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7], windows,
+                         "in process, on the bundled vehicle")
         _CACHE[key] = rec
     return _CACHE[key]
+
+
+def samples_inprocess(m, seed=None):
+    """The identify segment's samples of identification mission ``m`` flown on the in-process
+    fast path, as a flight keeps them (rows: t, the acceleration applied, the velocity, the
+    sample's age; :func:`fit_flight`'s columns), and its windows."""
+    from .inprocess import L_ACC, L_AGE, L_T, L_VEL, fly_inprocess
+    run = fly_inprocess(m, seed=seed)
+    L = run.log
+    d = np.column_stack([L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3], L[:, L_AGE]])
+    return d, windows_in(run.phases)
 
 
 def fit_flight(t, u, v, age, windows, flown, drag=None):

@@ -74,15 +74,9 @@ def test_the_controller_made_in_the_process_is_the_one_made_here(worker):
     """The doublets of thesis_spiral_wind on the bundled Crazyflie, fitted and the mission's
     LADRC made with the model: in the worker and here, the same fit, gains, margins and
     controller (its next command from the same samples)."""
-    from mavadrc.inprocess import L_ACC, L_T, L_VEL, fly_inprocess
-
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
-    r = fly_inprocess(I.identification_mission(m, calm=True), seed=0)
-    L = r.log
-    d = np.column_stack([L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3],
-                         np.full(len(L), np.nan)])
-    job = (d, I.windows_in(r.phases), "in a test", m.controller, "ladrc", 100.0, 0.47,
-           I.design_lag(m))
+    d, windows = I.samples_inprocess(I.identification_mission(m, calm=True), seed=0)
+    job = (d, windows, "in a test", m.controller, "ladrc", 100.0, 0.47, I.design_lag(m))
     rec_h, ctrl_h, gains_h, margin_h = fit_and_make(*job)
     rec_p, ctrl_p, gains_p, margin_p = worker.call(fit_and_make, *job)
     assert worker.where == "process"
