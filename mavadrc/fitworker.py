@@ -3,9 +3,10 @@
 The fit of the doublets (:func:`mavadrc.flight.fit_and_make`: a grid and a Nelder-Mead search,
 then the controller made with it and its delay margins) is one to two seconds of Python and
 numba kernels.  Made in a thread beside the control loop, it shared the interpreter's lock with
-the loop: on PX4 SIH the samples' age rose from ~0 to 0.2-0.4 s as the second fit (the drag
+the loop: on PX4 SIH the samples' age rose from ~0 to 0.21-0.27 s as the second fit (the drag
 learnt) ended, a moment before the thesis spiral began, and the 1 Hz swing that followed made
-the spiral's worst error.  In a process of its own the loop shares only the cores with it.
+the spiral's worst errors (0.155-0.224 m).  In a process of its own the loop shares only the
+cores with it.
 
 The process is ``python -m mavadrc.fitworker``, started when the flight starts (it loads what
 a fit uses long before the doublets end), fed pickled calls on its stdin and answering on its

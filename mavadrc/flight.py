@@ -255,8 +255,8 @@ def _freeze_heap():
     """Collect the heap once and move what survives (the modules, numba's and scipy's state,
     the mission: several hundred thousand objects) out of the collector's sight, before the
     flight's loop begins.  A full collection walks every object the collector tracks; over
-    that heap it stopped the loop for 70-100 ms on the shared 2-core machine, and once
-    mid-flight on PX4 SIH the samples' age rose to 0.1 s.  Frozen, a collection walks only
+    that heap it stopped the loop for 99-141 ms on the shared 2-core machine, once or twice a
+    flight (on PX4 SIH the samples' age rose to 0.1 s each time).  Frozen, a collection walks only
     what the flight made since.  Returns whether it froze it (not where the caller's heap was
     frozen already: that is the caller's to undo); :meth:`Flight.run` then unfreezes it when
     the flight ends."""
@@ -280,6 +280,7 @@ def late_warning(ages):
     return (f"{len(late)} samples were answered more than {LATE_S:.1f} s after they were taken "
             f"(the oldest {max(late):.2f} s): the loop or the link stalled, and the controller "
             "flew on old samples there")
+
 
 def built(spec, hover, kind, rate, gains):
     """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin."""
