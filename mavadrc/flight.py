@@ -289,10 +289,16 @@ def built(spec, hover, kind, rate, gains):
 
 
 def _run_once(ctrl):
-    """Every kernel of ``ctrl``'s step run once (compiled or loaded now, not mid-flight); it is
-    left at rest, waiting for its first sample."""
+    """Every kernel of ``ctrl``'s step, and of what the record reads of it each step (its
+    estimates; ADRC's TD outputs), run once: compiled or loaded now, not mid-flight.  (The TD's
+    read was not: on PX4 SIH a first ADRC flight compiled it at the mission's first sample and
+    answered the next 28 samples up to 0.32 s late.)  It is left at rest, waiting for its first
+    sample."""
     ctrl.reset(np.zeros(3))
     ctrl.update(np.zeros(3), np.zeros(3), np.zeros(3))
+    ctrl.z
+    if ctrl.kind == "adrc":
+        ctrl.td
     ctrl.reset()
 
 

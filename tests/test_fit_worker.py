@@ -1,5 +1,6 @@
-"""The input model's fit in its own process beside a real-time flight (mavadrc.fitworker), and
-the heap frozen for the flight's loop (mavadrc.flight._freeze_heap).
+"""What stopped a real-time flight's loop: the input model's fit, now in its own process
+(mavadrc.fitworker); the heap, now frozen for the loop (mavadrc.flight._freeze_heap); a kernel
+compiled at the mission's first sample, now run before the flight (mavadrc.flight._run_once).
 
 On PX4 SIH the fit made in a thread beside the loop held the interpreter, and the samples' age
 rose to 0.2-0.4 s as it ended, a moment before the spiral began; a full collection of the heap
@@ -131,3 +132,25 @@ def test_a_heap_the_caller_froze_is_left_to_the_caller():
         gc.unfreeze()
     assert _freeze_heap() is True and gc.get_freeze_count() > 0
     gc.unfreeze()
+
+
+def test_a_controller_built_for_flight_has_every_kernel_the_record_reads_ready():
+    """The record reads ADRC's TD outputs each step through their own kernel; built for a
+    flight (Flight._build, the fit's controller), the controller has run it already, so the
+    mission's first sample does not compile it (on PX4 SIH that answered 28 samples up to
+    0.32 s late).  In a fresh interpreter: not run before, run after."""
+    import subprocess
+    import sys
+
+    code = ("from mavadrc.control import kernels as K\n"
+            "from mavadrc.flight import built, _run_once\n"
+            "from mavadrc.mission import ControllerSpec\n"
+            "ready = lambda: bool(getattr(K.td_output, 'signatures', [True]))\n"
+            "before = ready()\n"
+            "ctrl, _ = built(ControllerSpec(kind='adrc', rate_hz=100.0), 0.5, 'adrc', 100.0,"
+            " None)\n"
+            "_run_once(ctrl)\n"
+            "print(before, ready())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, env=dict(os.environ, PYTHONPATH=os.getcwd()))
+    assert out.stdout.split() == ["False", "True"], out.stderr[-2000:]
