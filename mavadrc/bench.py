@@ -169,7 +169,8 @@ def _doublets_plant(rng):
 
 def _longest_gap_ms(work, period_s=0.002):
     """The longest pause (ms) of a loop that sleeps ``period_s`` per turn (the control loop
-    waiting on its socket) while ``work`` runs in a thread beside it."""
+    waiting on its socket) while ``work`` runs in a thread beside it, and what ``work``
+    returned."""
     import threading
 
     done = threading.Event()
@@ -182,9 +183,7 @@ def _longest_gap_ms(work, period_s=0.002):
         now = time.perf_counter()
         gap, last = max(gap, now - last), now
     th.join()
-    if out[0][1] is None:
-        raise RuntimeError("the bench's doublets were not identified beside the loop")
-    return 1e3 * gap
+    return 1e3 * gap, out[0]
 
 
 def fit_beside_loop_figures():
@@ -201,14 +200,22 @@ def fit_beside_loop_figures():
     m = load_mission("thesis_spiral_wind")
     d, windows = I.samples_inprocess(I.identification_mission(m, calm=True), seed=0)
     job = (d, windows, "in the bench", m.controller, "ladrc", 100.0, 0.47, I.design_lag(m))
+    def worst_gap_ms(make):
+        gaps = []
+        for _ in range(3):
+            gap, (rec, ctrl, _, _) = _longest_gap_ms(make)
+            if ctrl is None:
+                raise RuntimeError(f"the bench's doublets were not identified: {rec}")
+            gaps.append(gap)
+        return max(gaps)
+
     fit_and_make(*job)  # its kernels loaded here, as a flight's are before it flies
-    fig = {"fit_beside_loop_thread_longest_gap_ms": max(
-        _longest_gap_ms(lambda: fit_and_make(*job)) for _ in range(3))}
+    fig = {"fit_beside_loop_thread_longest_gap_ms": worst_gap_ms(lambda: fit_and_make(*job))}
     worker = FitWorker()
     try:
         worker.call(fit_and_make, *job)  # the process up and its kernels loaded
-        fig["fit_beside_loop_process_longest_gap_ms"] = max(
-            _longest_gap_ms(lambda: worker.call(fit_and_make, *job)) for _ in range(3))
+        fig["fit_beside_loop_process_longest_gap_ms"] = worst_gap_ms(
+            lambda: worker.call(fit_and_make, *job))
         if worker.where != "process":
             raise RuntimeError(f"the fits' process did not start: {worker.why_not}")
     finally:

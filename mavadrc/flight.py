@@ -540,6 +540,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.last = None  # latest accepted Sample
         self.yaw = 0.0
         self.cos_tilt = 1.0
+        # thrust_tilt: measured, read once (each control step asks)
+        self._tilt_measured = mission.controller.thrust_tilt == "measured"
         self.landed_state = None
         self.landed_state_wall = None
         self.steps = 0
@@ -1327,7 +1329,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """``thrust`` sized for the tilt the vehicle reports (``thrust_tilt: measured``,
         :func:`~mavadrc.control.geometry.thrust_for_tilt`) when its newest ATTITUDE is at most
         :data:`ATTITUDE_FRESH_S` older than sample ``s``; else as computed."""
-        if self.m.controller.thrust_tilt != "measured" or self._attitude_ms is None or \
+        if not self._tilt_measured or self._attitude_ms is None or \
                 s.t - self._attitude_ms / 1000.0 > ATTITUDE_FRESH_S:
             return thrust
         return thrust_for_tilt(thrust, float(q[0]), float(q[1]), float(q[2]), float(q[3]),
