@@ -609,7 +609,10 @@ class TimeSync:
     exchanges of the last :attr:`WINDOW_S` whose round trip is near the shortest among them
     (within :attr:`RTT_SLACK` times it plus :attr:`RTT_SLACK_NS`: the least queued), and read
     where it is asked.  With fewer than :attr:`MIN_FIT` of them, or spanning under
-    :attr:`MIN_SPAN_S`: the newest one's offset.  An exchange with a short round trip that
+    :attr:`MIN_SPAN_S`: the newest one's offset, at the rate last fitted (none before the
+    first fit).  On a loaded machine one exchange with a short round trip can leave too few of
+    the others near it; forgetting the rate then read a clock running 5 % slow as running at
+    ours (a test's real-time flight on the 2 shared cores).  An exchange with a short round trip that
     lands more than :attr:`JUMP_NS` off the line says the vehicle's clock jumped (a reboot, a
     time reset): the exchanges before it are forgotten.
     """
@@ -627,6 +630,7 @@ class TimeSync:
         self._recent = collections.deque()  # (our time at the exchange (ns), rtt_ns, offset_ns)
         self._line = None  # (t0_ns, offset at t0 (ns), skew): offset(t) = o0 + skew (t - t0)
         self.fitted = False  # whether the line is fitted (else: the newest exchange's offset)
+        self._fitted_skew = 0.0  # the rate of the last line fitted, kept while none can be
         self.asked = 0  # requests sent
 
     def sent(self, ts1):
@@ -660,7 +664,7 @@ class TimeSync:
         t_new, o_new = pts[-1]
         self.fitted = len(pts) >= self.MIN_FIT and t_new - pts[0][0] >= self.MIN_SPAN_S * 1e9
         if not self.fitted:
-            self._line = (t_new, o_new, 0.0)
+            self._line = (t_new, o_new, self._fitted_skew)
             return
         # least squares in seconds from the newest exchange (offsets in ns from its offset)
         t = [(ti - t_new) * 1e-9 for ti, _ in pts]
@@ -669,6 +673,7 @@ class TimeSync:
         skew_ns = sum((a - tm) * (b - om) for a, b in zip(t, o)) / \
             sum((a - tm) ** 2 for a in t)  # ns per s
         self._line = (t_new, o_new + int(round(om - skew_ns * tm)), skew_ns * 1e-9)
+        self._fitted_skew = skew_ns * 1e-9
 
     @property
     def offset_ns(self):
@@ -678,7 +683,7 @@ class TimeSync:
     @property
     def skew(self):
         """How much faster the vehicle's clock runs than ours (-0.0135: 1.35 % slower; 0 until
-        the exchanges span :attr:`MIN_SPAN_S`)."""
+        the exchanges span :attr:`MIN_SPAN_S`, then the last fitted while no line can be)."""
         return 0.0 if self._line is None else self._line[2]
 
     def offset_at(self, now_ns):

@@ -341,6 +341,27 @@ def test_the_age_follows_a_vehicle_clock_that_runs_slow():
     assert ts.skew == pytest.approx(-0.0135, abs=0.0005)
 
 
+
+def test_the_clock_rate_fitted_is_kept_while_too_few_exchanges_fit_a_line():
+    """A clock 5 % slow, fitted; then, on a loaded machine, one exchange whose round trip is far
+    shorter than the rest leaves fewer than MIN_FIT near it: the newest offset is taken, at the
+    rate fitted, not at ours (in CI a real-time flight reported a skew of 0 so)."""
+    from mavadrc.link import TimeSync
+
+    rng = np.random.default_rng(6)
+    clock = _sim_clock(0.95, quantum_s=0.001)
+    ts = TimeSync()
+    for _ in _exchanges(ts, 8.0, clock, rng, queued=0.0, rtt=(2e-3, 3e-3)):
+        pass
+    assert ts.fitted and ts.skew == pytest.approx(-0.05, abs=0.002)
+    for _ in _exchanges(ts, 1.0, clock, rng, start=8.0, queued=0.0, rtt=(1e-5, 2e-5)):
+        pass
+    assert not ts.fitted
+    assert ts.skew == pytest.approx(-0.05, abs=0.002)
+    now = 8.0 + 0.9  # the age read 0.9 s after that exchange, at the rate fitted
+    assert ts.age(clock(now - 0.003) // 1_000_000, int(now * 1e9)) == \
+        pytest.approx(0.003, abs=0.0015)
+
 def test_the_age_recovers_at_once_from_a_vehicle_clock_that_jumps():
     """A vehicle that reboots (its clock back near 0) or resets its time: the exchange that
     lands far off the line starts it afresh, and the ages are right again from the exchange
