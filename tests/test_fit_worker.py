@@ -127,7 +127,11 @@ def test_a_heap_the_caller_froze_is_left_to_the_caller():
     gc.freeze()
     try:
         n = gc.get_freeze_count()
-        assert _freeze_heap() is False and gc.get_freeze_count() == n
+        made_after = [[i] for i in range(5000)]
+        # Frozen objects that die leave the count (another thread may free some meanwhile),
+        # so it may fall; a second freeze would raise it by the 5000 lists made after.
+        assert _freeze_heap() is False and 0 < gc.get_freeze_count() <= n
+        assert len(made_after) == 5000
     finally:
         gc.unfreeze()
     assert _freeze_heap() is True and gc.get_freeze_count() > 0
