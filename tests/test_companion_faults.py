@@ -65,7 +65,14 @@ def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
         stop(srv, link)
     if summary["landed"]:
         assert summary["max_error_m"] < 0.5
-    assert 0.1 < summary["link"]["loss_fraction"] < 0.3
+    # The frames lost on the link (MAVLink sequence gaps) are the link's 20 %.  The samples'
+    # loss is counted against the rate flown: on a loaded machine the bundled vehicle may send
+    # under 90 % of the rate asked before arming, the flight then flies (and counts) at the rate
+    # measured, and a vehicle that catches up later shows less (CI once read 0.094).
+    assert 0.1 < summary["link"]["frame_loss_fraction"] < 0.3
+    assert 0.05 < summary["link"]["loss_fraction"] < 0.3
+    if "flying at" not in summary["sources"]["rate"]:  # flown at the rate asked
+        assert 0.1 < summary["link"]["loss_fraction"] < 0.3
     assert "lost" in text  # the console said so
 
 
