@@ -452,9 +452,18 @@ class LossyLink:
                 s.setsockopt(socket.SOL_SOCKET, opt, 1 << 20)
             except OSError:
                 pass
-        s.bind((self.host, port))
+        self._bind(s, port)
+        if port == 0 and s.getsockname()[1] == self.companion_port:
+            # the companion's port, chosen free a moment ago and not bound yet, is as likely an
+            # ephemeral port as any: the companion would find it taken (seen once in a suite)
+            other = self._socket(0)
+            s.close()
+            return other
         s.setblocking(False)
         return s
+
+    def _bind(self, s, port):
+        s.bind((self.host, port))
 
     # --- endpoints and life cycle ----------------------------------------------------------------
 
