@@ -254,8 +254,7 @@ class Transit(T.Trajectory):
     its position, velocity and acceleration, so a segment that starts at speed (a circle, the
     thesis spiral) is joined without a velocity step.  It starts with the acceleration the
     segment before it ended with (``acc0``), so leaving a turn (the spiral's 2.5 m/s^2 toward
-    its centre) asks no step of the feed-forward: a vehicle whose tilt follows 0.26 s late
-    answered such a step 0.10 m off its reference.  The heading turns along a smoothstep.
+    its centre) asks no step of the feed-forward.  The heading turns along a smoothstep.
 
     Duration: long enough for the distance at ``speed`` (peak speed of a rest-to-rest quintic is
     1.875 distance/T) and for the change of velocity at about ``accel`` m/s^2 (a mission's

@@ -508,9 +508,9 @@ def test_transit_accel_times_the_run_up_into_a_segment_that_starts_at_speed(tmp_
 def test_every_shipped_mission_asks_no_step_of_the_feed_forward(path):
     """The reference a mission builds is continuous in position, velocity and acceleration
     across every phase boundary: a step in the acceleration is a step in the feed-forward,
-    which a vehicle whose tilt follows 0.26 s late answers off its track (leaving the spiral
-    of ``thesis_spiral_wind``, 2.5 m/s^2 toward its centre, into the transit to the hover
-    used to drop to 0 at once: 0.10 m off on PX4 SIH, the flight's largest error)."""
+    which a vehicle whose tilt follows late answers off its track (leaving the spiral of
+    ``thesis_spiral_wind``, 2.5 m/s^2 toward its centre, the transit to the hover used to
+    drop it to 0 at once)."""
     from mavadrc.mission import load_mission
 
     traj, phases = load_mission(path).build_trajectory(np.zeros(3))
