@@ -13,6 +13,7 @@ import gc
 import logging
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -24,7 +25,38 @@ import traceback
 import yaml
 
 
+#: ports chosen free are drawn from here up to the kernel's ephemeral range (MAVLink's own
+#: 14540-14580 and 14550 lie below)
+PORT_FLOOR = 20000
+_pick = random.SystemRandom()  # a test that seeds the global random cannot make two pick alike
+
+
+def _ephemeral_range():
+    """The kernel's range for ports bound to 0 ((low, high)), None where it cannot be read."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            low, high = (int(v) for v in f.read().split())
+        return low, high
+    except (OSError, ValueError):
+        return None
+
+
 def _free_port(kind):
+    """A loopback port nobody holds, below the ephemeral range where the kernel has one: a port
+    chosen here is released until its user binds it, and meanwhile any socket bound to port 0
+    (the vehicle's, a proxy's, another program's) could be handed it from inside that range."""
+    span = _ephemeral_range()
+    if span is not None and span[0] > PORT_FLOOR + 1000:
+        for _ in range(100):
+            port = _pick.randrange(PORT_FLOOR, span[0])
+            s = socket.socket(socket.AF_INET, kind)
+            try:
+                s.bind(("127.0.0.1", port))
+                return port
+            except OSError:
+                continue
+            finally:
+                s.close()
     s = socket.socket(socket.AF_INET, kind)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]

@@ -452,18 +452,9 @@ class LossyLink:
                 s.setsockopt(socket.SOL_SOCKET, opt, 1 << 20)
             except OSError:
                 pass
-        self._bind(s, port)
-        if port == 0 and s.getsockname()[1] == self.companion_port:
-            # the companion's port, chosen free a moment ago and not bound yet, is as likely an
-            # ephemeral port as any: the companion would find it taken (seen once in a suite)
-            other = self._socket(0)
-            s.close()
-            return other
+        s.bind((self.host, port))
         s.setblocking(False)
         return s
-
-    def _bind(self, s, port):
-        s.bind((self.host, port))
 
     # --- endpoints and life cycle ----------------------------------------------------------------
 

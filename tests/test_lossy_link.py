@@ -480,28 +480,3 @@ def test_the_proxy_runs_on_its_own_in_front_of_an_autopilot(tmp_path):
     down = next(line for line in out.splitlines() if line.startswith("down:"))
     assert "'loss':" in down
 
-
-def test_the_links_own_socket_never_takes_the_companions_port(monkeypatch):
-    """The companion's port is only chosen (free a moment ago), not bound, when the link binds
-    its own ephemeral socket; should the kernel hand that very port out, the link takes
-    another, and the companion can still bind it."""
-    companion = free_udp_port()
-    real = LossyLink._bind
-    handed = []
-
-    def unlucky(self, sock, port):
-        if port == 0 and not handed:  # the kernel's first ephemeral pick: the companion's port
-            handed.append(companion)
-            port = companion
-        real(self, sock, port)
-
-    monkeypatch.setattr(LossyLink, "_bind", unlucky)
-    link = LossyLink(companion, seed=0)
-    try:
-        assert handed == [companion]
-        assert companion not in (link._csock.getsockname()[1], link.vehicle_port)
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.bind(("127.0.0.1", companion))
-        s.close()
-    finally:
-        link.stop()

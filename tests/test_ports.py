@@ -40,3 +40,25 @@ def test_every_port_a_test_vehicle_sends_to_is_held(lockstep):
         c.close()
         srv.stop()
     assert not _held(gcs)  # given back when the vehicle stops
+
+
+@pytest.mark.parametrize("kind", ["udp", "tcp"])
+def test_a_port_chosen_free_is_never_an_ephemeral_one(kind):
+    """A port chosen free is released until its user binds it; from below the kernel's
+    ephemeral range, no socket bound to port 0 meanwhile (a lossy link's, a vehicle's, another
+    worker's) can be handed it.  Once, a proxy's own socket took the companion's port and the
+    companion found it in use."""
+    from mavadrc import embedded
+
+    span = embedded._ephemeral_range()
+    if span is None or span[0] <= embedded.PORT_FLOOR + 1000:
+        pytest.skip("no ephemeral range to stay below on this machine")
+    choose = embedded.free_udp_port if kind == "udp" else embedded.free_tcp_port
+    sock_type = socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM
+    ports = [choose() for _ in range(50)]
+    assert all(embedded.PORT_FLOOR <= p < span[0] for p in ports), ports
+    assert len(set(ports)) > 40  # drawn at random, not one port handed to every caller
+    for p in ports[:5]:
+        s = socket.socket(socket.AF_INET, sock_type)
+        s.bind(("127.0.0.1", p))  # and free to take
+        s.close()
