@@ -361,27 +361,34 @@ def _judged(gains, lag, dead_time):
     return out
 
 
-def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None):
+def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observers=True):
     """The mission's ``wc`` and ``wo`` (chosen for a vehicle whose lags are ``design``, s per
     axis) for one whose lags are ``lag``.  Where the horizontal lag exceeds the design's by more
     than :data:`SCALE_TOLERANCE`, the gains must keep, as a share of the lag, the delay margin
     they had on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`; if they do not, the
     horizontal ``wc`` and ``wo`` are scaled down by one factor until they do (the loop designed,
     in slower time: a loop whose gains and plant lag scale together is the same loop, time
-    stretched, with the same margin as a share of the lag).  Never faster than given; the
-    vertical loop, which answers through the thrust in 0.01-0.1 s on every vehicle flown, is
-    left as given.  Returns (gains, the horizontal factor: 1 when left as given)."""
+    stretched, with the same margin as a share of the lag).  Then the observers get their own
+    bandwidth back: they model the lag (``input_lag``), so what the lag limits is the
+    feedback's bandwidth, not theirs, and a faster observer lags the loop less, so ``wo``
+    is flown as given wherever that keeps at least the stretched loop's margin (on PX4 SIH's
+    response the spiral's wc 2.1 keeps 100 ms on one lag with its own wo 23.9, 80 with wo
+    slowed to 12.5, and it answers the estimate's wander less; ``keep_observers`` False scales
+    ``wo`` with ``wc`` as before).  Never faster
+    than given; the vertical loop, which answers through the thrust in 0.01-0.1 s on every
+    vehicle flown, is left as given.  Returns (gains, the horizontal factor of ``wc``: 1 when
+    left as given)."""
     slow, quick = max(lag[0], lag[1]), max(design[0], design[1])
     if not (quick > 0.0 and slow > SCALE_TOLERANCE * quick):
         return gains, 1.0
 
-    def scaled(f):  # the horizontal wc and wo times f
+    def scaled(f, keys=("wc", "wo")):  # the horizontal wc (and wo) times f
         return {**gains, **{key: tuple(round(f * float(w), 3) if i < 2 else float(w)
                                        for i, w in enumerate(gains[key]))
-                            for key in ("wc", "wo")}}
+                            for key in keys}}
 
-    def margin(f, plant, dead=None):
-        g = _judged(scaled(f), plant, dead)
+    def margin(f, plant, dead=None, keys=("wc", "wo")):
+        g = _judged(scaled(f, keys), plant, dead)
         return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
 
     need = min(margin(1.0, design) / quick, MISSION_MARGIN_SHARE) * slow
@@ -392,6 +399,8 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if margin(mid, lag, dead_time) >= need else (lo, mid)
     f = round(lo, 3)
+    if keep_observers and margin(f, lag, dead_time, ("wc",)) >= margin(f, lag, dead_time):
+        return scaled(f, ("wc",)), f
     return scaled(f), f
 
 
@@ -898,10 +907,15 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._note_scaling(gains) is not None:
             f, design = self.gains_scaled["factor"], self.gains_scaled["design_lag_s"]
             name = getattr(self.m.vehicle, "name", self.m.vehicle)
+            given_wo = self.m.controller.gains.get("wo")
+            kept = given_wo is not None and "wo" in gains and \
+                float(gains["wo"][0]) == float(given_wo[0])
+            what = (f"horizontal wc x{f:.2f}, to keep its delay margin (wo as given: the "
+                    "observers model the lag)" if kept else
+                    f"horizontal wc and wo x{f:.2f}, to keep their delay margin")
             self.say(f"the mission's gains were chosen for a vehicle answering in "
                      f"{design[0]:.3f} s horizontally ({name}); this one takes "
-                     f"{gains['input_lag'][0]:.3f} s: horizontal wc and wo x{f:.2f}, to "
-                     "keep their delay margin")
+                     f"{gains['input_lag'][0]:.3f} s: {what}")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
