@@ -372,8 +372,8 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observ
     bandwidth back: they model the lag (``input_lag``), so what the lag limits is the
     feedback's bandwidth, not theirs, and a faster observer lags the loop less, so ``wo``
     is flown as given wherever that keeps at least the stretched loop's margin (on PX4 SIH's
-    response the spiral's wc 2.1 keeps 100 ms on one lag with its own wo 23.9, 80 with wo
-    slowed to 12.5, and it answers the estimate's wander less; ``keep_observers`` False scales
+    response the spiral's wc 2.1 keeps 100 ms on one lag with its own wo 23.9, 90 with wo
+    slowed to 12.6, and it answers the estimate's wander less; ``keep_observers`` False scales
     ``wo`` with ``wc`` as before).  Never faster
     than given; the vertical loop, which answers through the thrust in 0.01-0.1 s on every
     vehicle flown, is left as given.  Returns (gains, the horizontal factor of ``wc``: 1 when
