@@ -31,9 +31,10 @@ from sitl_helpers import both_paths  # noqa: E402
 
 
 #: the thesis spiral flown at the slowed gains on a Crazyflie twice as slow as its file (m,
-#: after settling; measured 0.065 m, +-2.1 deg; at the gains as given the robustness study's
-#: attitude loop x0.5 measures 1.4 m)
-MAX_SLOWED_SPIRAL_M = 0.1
+#: after settling; measured 0.017 m, +-1.2 deg with wc slowed and wo kept; 0.057-0.065 m,
+#: +-2.1 deg with both slowed; at the gains as given the robustness study's attitude loop x0.5
+#: measures 1.4 m)
+MAX_SLOWED_SPIRAL_M = 0.035
 
 
 def _px4_sih(path, tmp, extra="", drop_gains=False):
@@ -322,7 +323,7 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert 0.22 < lag < 0.32
     assert 0.3 < f < 0.7
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * f, abs=0.01)
-    assert s["attitude_oscillation"]["amplitude_deg"] < 4.0
+    assert s["attitude_oscillation"]["amplitude_deg"] < 2.5
     # the margin's warning (a limit cycle likely) is held against the swing flown
     assert s["attitude_oscillation"]["limit_cycle"] is False
     (warned,) = [w for w in s["warnings"] if w.startswith("the delay margin")]
