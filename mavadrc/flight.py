@@ -341,9 +341,9 @@ SCALE_TOLERANCE = 1.15
 #: the share of the identified horizontal lag a mission's own gains keep as delay margin on a
 #: vehicle slower than theirs, when they kept at least that on their own.  Chosen on PX4 SIH
 #: (0.24-0.27 s): the spiral's wc 4 (32 % on the Crazyflie) kept 11 % there and flew 0.37-0.50 m
-#: at the tilt limit; x500_gusts' wc 2 kept 36-38 % (with its wo 10 of then).  At that share both swung +-6-10 deg
-#: at 1 Hz there (the flights' own attitude_oscillation; an earlier reading by hand had said
-#: 2.3-2.4): the loop answering the estimate's noise, and slowing them further (wc 1.6) traded
+#: at the tilt limit; x500_gusts' wc 2 kept 36-38 % (with its wo 10 of then).  At that share
+#: both swung +-6-10 deg at 1 Hz there (the flights' own attitude_oscillation; an earlier
+#: reading by hand had said 2.3-2.4): the loop answering the estimate's noise, and slowing them further (wc 1.6) traded
 #: the swing for a slow error twice as large (README, "Flown in flight against real autopilots").
 MISSION_MARGIN_SHARE = 0.35
 

@@ -3,9 +3,9 @@ input model's mean delay, where the command they compute will act.
 
 Told the vehicle's response (``input_lag``), the observers stop reading its lag as a disturbance,
 but the feedback still acts on where the vehicle is now, and the vehicle answers 0.25 s later
-(PX4 SIH): x500_gusts' gains until 2026-12-05 (wc 2, wo 10) keep 50 ms of delay margin there and amplify the position
-estimate's noise 5x at 0.7 Hz.  Carried to where the command acts, the errors leave the lag out of
-the feedback as far as the model is right.
+(PX4 SIH): x500_gusts' gains until 2026-12-05 (wc 2, wo 10) keep 50 ms of delay margin there
+and amplify the position estimate's noise 5x at 0.7 Hz.  Carried to where the command acts, the
+errors leave the lag out of the feedback as far as the model is right.
 """
 
 import io

@@ -95,24 +95,29 @@ def test_the_server_refuses_a_bad_wander_in_one_line():
     assert "Traceback" not in p.stderr
 
 
+def _wander_flown(scenario, controller, seeds=range(3)):
+    """``after_settle`` of configs/experiments/estimate_wander.yaml's ``scenario`` flown by its
+    ``controller`` (both by name) on the fast path, one per seed."""
+    from pathlib import Path
+
+    from mavadrc.experiment import load_experiment, run_inprocess
+    exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
+                          / "estimate_wander.yaml")
+    i = [s.name for s in exp.scenarios].index(scenario)
+    j = [c.name for c in exp.controllers].index(controller)
+    return [run_inprocess(exp, i, j, seed)[0]["after_settle"] for seed in seeds]
+
+
 def test_the_spiral_on_a_wandering_px4_sih_meets_px4_sihs_floor():
     """configs/experiments/estimate_wander.yaml, three seeds: PX4 SIH's wander (60 mm) costs
     the spiral 0.03-0.04 m on the bundled PX4 SIH quad, and leaves it where PX4 SIH flew it
     (measured with six seeds: 0.186 +- 0.013 at the 35 deg tilt limit, 0.140 +- 0.015 at 45;
     PX4 SIH flown 0.10-0.21 and 0.10-0.15): the wider limit is worth 0.04 m, and neither comes
     near 0.1 (README, "The floor, reproduced")."""
-    from pathlib import Path
-
-    from mavadrc.experiment import load_experiment, run_inprocess
-    exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
-                          / "estimate_wander.yaml")
-    names = [s.name for s in exp.scenarios]
-    ctrls = [c.name for c in exp.controllers]
     got = {}
     for sc in ("white noise only", "wander 60 mm (PX4 SIH's)"):
         for c in ("wc 2.1 tilt 35", "wc 2.1 tilt 45"):
-            got[sc, c] = np.mean([run_inprocess(exp, names.index(sc), ctrls.index(c), seed)[0]
-                                  ["after_settle"]["max_error_m"] for seed in range(3)])
+            got[sc, c] = np.mean([a["max_error_m"] for a in _wander_flown(sc, c)])
     for c in ("wc 2.1 tilt 35", "wc 2.1 tilt 45"):
         assert got["wander 60 mm (PX4 SIH's)", c] > got["white noise only", c] + 0.015, got
     wandering = got["wander 60 mm (PX4 SIH's)", "wc 2.1 tilt 45"]
@@ -130,17 +135,7 @@ def test_the_observers_kept_answer_a_smooth_wander_better_and_white_noise_worse(
     35 deg tilt limit, with the spiral's drag asking ~30 deg, clips for 12 s of the 33 instead of
     7 and doubles the RMS (0.19 for 0.09); at 45 deg, 0.163 against 0.139 max (README, "The
     floor, reproduced")."""
-    from pathlib import Path
-
-    from mavadrc.experiment import load_experiment, run_inprocess
-    exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
-                          / "estimate_wander.yaml")
-    names = [s.name for s in exp.scenarios]
-    ctrls = [c.name for c in exp.controllers]
-
-    def flown(sc, c):
-        return [run_inprocess(exp, names.index(sc), ctrls.index(c), seed)[0]["after_settle"]
-                for seed in range(3)]
+    flown = _wander_flown
     smooth = "wander 60 mm, no white noise"
     kept, slowed = flown(smooth, "wc 2.1 wo 23.9 tilt 45"), flown(smooth, "wc 2.1 tilt 45")
     for k, s in zip(kept, slowed):
