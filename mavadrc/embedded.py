@@ -125,6 +125,8 @@ class EmbeddedVehicle:
             cmd += ["--latency", repr(mission.sensor_latency_s)]
         if mission.height_drift_mps:
             cmd += ["--height-drift", repr(mission.height_drift_mps)]
+        if mission.ground_climb_mps:
+            cmd += ["--ground-climb", repr(mission.ground_climb_mps)]
         if mission.clock_rate != 1.0:  # real time only (fly refuses it in lockstep)
             cmd += ["--clock-rate", repr(mission.clock_rate)]
         if math.isnan(mission.heading_deg):

@@ -644,7 +644,12 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._waited_capped = 0.0  # s of that waiting with the thrust at its bound
         self.liftoff_hover = None  # the hover thrust taken at lift-off, after a wait
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
-        self._disarm_refused = False
+        self._disarm_refused_wall = None  # wall time of the first refused disarm
+        #: how the vehicle came to be disarmed after touchdown: "command" (ours), "land mode"
+        #: (the autopilot's, handed the landing), None (not by either)
+        self.disarm_how = None
+        self.disarm_refused_s = None  # s the disarm was refused before the land mode took over
+        self.disarm_after_s = None  # s from the thrust cut to the disarm seen
         self._error = None  # why the flight was refused before anything flew
         self._handed_over = False  # the mission ended in the air, as planned
         self.takeover_in_air = False
@@ -1666,6 +1671,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "touchdown_height_m": self.touchdown_height,
             "touchdown_soft": soft,
             "disarmed": bool(disarmed),
+            # after touchdown: by our command, by the autopilot's land mode (handed the landing,
+            # after its detector refused the disarm for refused_s, or ArduPilot's always), or by
+            # the autopilot alone (its auto-disarm); after_cut_s from the thrust cut
+            "disarm": {"by": self.disarm_how, "refused_s": self.disarm_refused_s,
+                       "after_cut_s": self.disarm_after_s},
             "aborted": aborted,
             # the console (stdout) failing or the terminal hanging up ends nothing: the flight
             # went on, and what the console would have said is in companion.log

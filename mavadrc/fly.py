@@ -221,6 +221,7 @@ def run_context(mission, kind, connect, lockstep):
                       wander=mission.wander, wander_corner_hz=mission.wander_corner_hz,
                       sensor_latency_s=mission.sensor_latency_s,
                       height_drift_mps=mission.height_drift_mps,
+                      ground_climb_mps=mission.ground_climb_mps,
                       clock_rate=mission.clock_rate,
                       link=None if mission.link is None else mission.link.as_dict(),
                       heading_deg=("random" if math.isnan(mission.heading_deg)
@@ -342,6 +343,9 @@ def _main(args):
     if summary["landed"]:
         state = (f"landed (touchdown {summary['touchdown_speed_mps']:.2f} m/s) and disarmed"
                  if summary.get("touchdown_speed_mps") is not None else "landed and disarmed")
+        refused = (summary.get("disarm") or {}).get("refused_s")
+        if refused is not None:
+            state += f" by its land mode (the disarm refused for {refused:.1f} s)"
     elif summary["touchdown_seen"] and not summary["touchdown_soft"]:
         state = (f"touched down hard ({summary['touchdown_speed_mps']:.2f} m/s)"
                  + (" and disarmed" if summary["disarmed"] else ""))

@@ -53,6 +53,16 @@ CARRIED_SHARE = 0.6
 #: mid-mission, the same with the thrust commanded within this of its floor (normalised)
 CARRIED_THRUST_MARGIN = 0.05
 CUT_S = 0.5  # thrust ramp down after touchdown
+#: s after the thrust cut within which the vehicle must be disarmed, else the flight escalates
+DISARM_BOUND_S = 25.0
+#: s of a refused disarm before the autopilot's land mode is handed the landing: PX4 SIH's
+#: estimate read the grounded vehicle climbing 0.35-0.4 m/s for 4 s after the contact (its
+#: height 0.6-1.2 m up), and its land detector, with our zero thrust in OFFBOARD, refused the
+#: disarm for the whole 15 s then allowed (3 of about 50 flights); its land mode, given the
+#: landing then, saw the landing in 3-4 s each time and disarmed the vehicle
+LAND_HANDOVER_S = 2.0
+#: s between disarm requests to an autopilot refusing them
+DISARM_RETRY_S = 1.0
 #: the tilt limit (deg) of the final descent past the mission's end, as PX4 limits its own
 #: landing (MPC_TILTMAX_LND's default)
 TOUCHDOWN_TILT_DEG = 12.0
@@ -407,32 +417,70 @@ class GroundPhases:
 
     def _disarm_tick(self, now):
         """After touchdown and the thrust cut, disarm as the autopilot's landing detector
-        allows: PX4, once it says ON_GROUND (a refusal waits for it; PX4 also disarms itself
-        COM_DISARM_LAND s after landing); ArduPilot, through its land mode
-        (:attr:`~mavadrc.sequence.Sequence.land_to_disarm`).  Bounded at 15 s."""
+        allows: PX4, once it says ON_GROUND (PX4 also disarms itself COM_DISARM_LAND s after
+        landing); a refusal for :data:`LAND_HANDOVER_S` hands the landing to its land mode, which
+        disarms the vehicle once its detector agrees (disarms are still asked meanwhile);
+        ArduPilot, through its land mode from the start
+        (:attr:`~mavadrc.sequence.Sequence.land_to_disarm`).  Bounded at
+        :data:`DISARM_BOUND_S`."""
         since = now - self._phase_wall
         if self._confirm_since is None:
             self._confirm_since = self._phase_wall  # ask for heartbeats until one shows it
         hb = self.link.heartbeat_since(self._phase_wall)
         if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
             self._confirm_since = None
-            return self._end_disarmed(hb, "disarmed")
+            self.disarm_after_s = since
+            if self.disarm_how is None:
+                c = self._cmd
+                ours = c is not None and c.cmd == M.MAV_CMD_COMPONENT_ARM_DISARM and c.accepted
+                self.disarm_how = "command" if ours else "autopilot"
+            return self._end_disarmed(hb, "disarmed" + (
+                f" (by {self.seq.title}'s land mode)" if self.disarm_how == "land mode" else ""))
         c = self._cmd
-        if self.seq.land_to_disarm:
-            if c is None or (c.done and not c.accepted and now - c.acked_wall > 1.0):
-                if c is None:
-                    self.say(f"on the ground: {self.seq.name}'s land mode disarms it")
+        if not self.seq.land_to_disarm and self.disarm_how != "land mode" and \
+                self._disarm_refused_wall is not None and \
+                now - self._disarm_refused_wall >= LAND_HANDOVER_S and (c is None or c.done):
+            self.disarm_how = "land mode"
+            self.disarm_refused_s = now - self._disarm_refused_wall
+            self.say(f"{self.seq.title}'s landing detector still reads the vehicle in the air"
+                     f"{self._estimate_now()}: its land mode takes the landing over, to disarm "
+                     "it once the detector agrees")
+            c = self._cmd = None
+        if self.seq.land_to_disarm or self.disarm_how == "land mode":
+            self.disarm_how = "land mode"
+            if c is None or (c.done and c.cmd == M.MAV_CMD_NAV_LAND and not c.accepted
+                             and now - c.acked_wall > 1.0):
+                if c is None and self.seq.land_to_disarm:
+                    self.say(f"on the ground: {self.seq.title}'s land mode disarms it")
                 self._cmd = self.link.command(M.MAV_CMD_NAV_LAND)
+            elif not self.seq.land_to_disarm and c.done and (
+                    c.cmd != M.MAV_CMD_NAV_LAND or c.accepted) and \
+                    now - c.acked_wall > DISARM_RETRY_S:
+                # PX4's land mode disarms by itself unless COM_DISARM_LAND is off: ask as well
+                self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
         elif c is None:
             ground = self.landed_state == M.MAV_LANDED_STATE_ON_GROUND
             if ground or since > 3.0 or "EXTENDED_SYS_STATE" not in self.link.messages:
                 self._cmd = self.link.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
         elif c.done:
-            if not c.accepted and c.result != TIMEOUT and not self._disarm_refused:
-                self._disarm_refused = True
+            if not c.accepted and c.result != TIMEOUT and self._disarm_refused_wall is None:
+                self._disarm_refused_wall = now
                 self.say(f"disarm refused ({result_name(c.result)}){self._because()}: waiting "
                          "for the autopilot's landing detector")
-            if now - c.acked_wall > 1.0:
+            if now - c.acked_wall > DISARM_RETRY_S:
                 self._cmd = None  # ask again
-        if since > 15.0:
-            self._escalate("disarm_timeout", "the vehicle did not disarm within 15 s of touchdown")
+        if since > DISARM_BOUND_S:
+            self._escalate("disarm_timeout", f"the vehicle did not disarm within "
+                                             f"{DISARM_BOUND_S:g} s of touchdown")
+
+    def _estimate_now(self):
+        """' (its estimate: 0.62 m above the takeoff spot, climbing 0.35 m/s)', from the last
+        sample, or '' without one."""
+        s = self.last
+        if s is None:
+            return ""
+        vz = float(s.vel[2])
+        motion = (f"climbing {-vz:.2f} m/s" if vz < -0.05 else
+                  f"sinking {vz:.2f} m/s" if vz > 0.05 else "still")
+        return (f" (its estimate: {float(self.origin[2] - s.pos[2]):.2f} m above the takeoff "
+                f"spot, {motion})")

@@ -417,6 +417,9 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     if mission.height_drift_mps:
         raise ValueError("sim.height_drift_mps: the in-process path does not model a drifting "
                          "height estimate (it never lands); fly it over MAVLink")
+    if mission.ground_climb_mps:
+        raise ValueError("sim.ground_climb_mps: the in-process path has no autopilot to land "
+                         "on; fly it over MAVLink")
     if mission.clock_rate != 1.0:
         raise ValueError("sim.clock_rate: the in-process path has one clock (the vehicle's); "
                          "fly it over MAVLink in real time")

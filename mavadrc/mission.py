@@ -101,6 +101,9 @@ class Mission:
     wander_corner_hz: float = WANDER_CORNER_HZ
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
     height_drift_mps: float = 0.0  # the bundled vehicle's height estimate drifts up (m/s)
+    #: m/s: after a flight, at rest on the ground, the bundled vehicle's estimate reads a climb
+    #: (:attr:`sim.vehicle.SimVehicle.ground_climb_mps`)
+    ground_climb_mps: float = 0.0
     #: in real time the bundled vehicle's clock runs at this share of the wall clock (MAVLink
     #: paths; ``mavadrc sitl --clock-rate``)
     clock_rate: float = 1.0
@@ -684,6 +687,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.wander_corner_hz = s.number("wander_corner_hz", WANDER_CORNER_HZ, ge=0.01, le=5.0)
         m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
         m.height_drift_mps = s.number("height_drift_mps", 0.0, ge=-0.5, le=0.5)
+        m.ground_climb_mps = s.number("ground_climb_mps", 0.0, ge=0.0, le=2.0)
         m.clock_rate = s.number("clock_rate", 1.0, ge=CLOCK_RATES[0], le=CLOCK_RATES[1])
         if s.has("link"):
             from sim.link_model import link_from_section

@@ -67,6 +67,7 @@ AP_SMART_RTL = _AP_NUMBER["SMART_RTL"]
 
 class Sequence:
     name = "?"
+    title = "?"  # as the console names it
     control_mode = "?"  # the mode that takes our setpoints
     hover_param = None
     motor_delay_param = None  # the parameter holding how long the motors need after arming
@@ -119,6 +120,7 @@ class PX4Sequence(Sequence):
     """PX4: OFFBOARD (setpoints must already stream), Hold (AUTO.LOITER), AUTO.LAND."""
 
     name = "px4"
+    title = "PX4"
     control_mode = "OFFBOARD"
     hover_param = "MPC_THR_HOVER"
     # the ESCs' spool-up time PX4 gives its own takeoff (mc_pos_control); in OFFBOARD attitude
@@ -162,6 +164,7 @@ class ArduPilotSequence(Sequence):
     failsafe then lands at once)."""
 
     name = "ardupilot"
+    title = "ArduPilot"
     control_mode = "GUIDED_NOGPS"
     hover_param = "MOT_THST_HOVER"
     # ArduCopter holds the motors at minimum for ARMING_DELAY_SEC after arming: a build

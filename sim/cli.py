@@ -50,6 +50,11 @@ def add_arguments(p):
     p.add_argument("--height-drift", type=float, default=0.0, metavar="M/S",
                    help="the reported height estimate drifts up this fast (a barometer's drift; "
                         "the vehicle lands where its estimate says the ground is)")
+    p.add_argument("--ground-climb", type=float, default=0.0, metavar="M/S",
+                   help="once the vehicle has flown and come to rest on the ground, its height "
+                        "estimate reads a climb this fast, held 4 s then dying away in 4 s "
+                        "(PX4 SIH's EKF2 read 0.35-0.4 m/s so; its land detector then refused "
+                        "the disarm)")
     p.add_argument("--link", default=None, metavar="FILE",
                    help="YAML file with a link model (latency, jitter, loss per direction, "
                         "blackouts), as a mission's sim: {link: ...}")
@@ -225,6 +230,8 @@ def make_servers(args):
         raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
     if not math.isfinite(args.height_drift) or abs(args.height_drift) > 0.5:
         raise SystemExit(f"--height-drift must be -0.5 to 0.5 m/s (got {args.height_drift!r})")
+    if not (math.isfinite(args.ground_climb) and 0.0 <= args.ground_climb <= 2.0):
+        raise SystemExit(f"--ground-climb must be 0 to 2 m/s (got {args.ground_climb!r})")
     if not (math.isfinite(args.wander) and 0.0 <= args.wander <= 1.0):
         raise SystemExit(f"--wander must be 0 to 1 m (got {args.wander!r})")
     if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
@@ -249,7 +256,8 @@ def make_servers(args):
             vehicle = SimVehicle(args.vehicle, wind=args.wind, seed=args.seed + k,
                                  sensors=sensors, attitude_controller=args.attitude_controller,
                                  yaw=math.radians(args.heading),
-                                 height_drift_mps=args.height_drift)
+                                 height_drift_mps=args.height_drift,
+                                 ground_climb_mps=args.ground_climb)
             servers.append(SitlServer(vehicle, args.autopilot, args.instance + k,
                                       lockstep=args.lockstep,
                                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,

@@ -126,6 +126,15 @@ def child_seeds(seed, n=2):
 
 #: ``yaw`` (rad) that asks :class:`SimVehicle` for an initial heading drawn from its seed
 RANDOM_HEADING = math.nan
+#: ``ground_climb_mps``: the shape of the climb the estimate reads after the vehicle comes to
+#: rest on the ground, as PX4 SIH's EKF2 read it (0.35-0.4 m/s for 4 s, then dying away with a
+#: 4 s time constant, 1.2 m in all, while SIH's truth sat still): held this long (s) ...
+GROUND_CLIMB_HOLD_S = 4.0
+#: ... then decaying with this time constant (s)
+GROUND_CLIMB_DECAY_S = 4.0
+#: the vehicle has flown once it was this high (m), and is at rest within this of the ground
+GROUND_CLIMB_FLOWN_M = 0.5
+GROUND_CLIMB_REST_M = 0.005
 
 
 def initial_heading(yaw, seed):
@@ -280,11 +289,17 @@ class SimVehicle:
                  attitude_controller="px4", physics_dt=0.001, attitude_rate_hz=None,
                  position_rate_hz=100.0, max_thrust=None, hover_thrust=None, airmode=True,
                  attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
-                 auto_disarm_s=2.0, thrust_model_factor=0.0, height_drift_mps=0.0):
+                 auto_disarm_s=2.0, thrust_model_factor=0.0, height_drift_mps=0.0,
+                 ground_climb_mps=0.0):
         self.params = resolve_vehicle(vehicle)
         self.height_drift_mps = float(height_drift_mps)
         if not math.isfinite(self.height_drift_mps):
             raise ValueError(f"height_drift_mps must be finite (got {height_drift_mps!r})")
+        self.ground_climb_mps = float(ground_climb_mps)
+        if not (math.isfinite(self.ground_climb_mps) and self.ground_climb_mps >= 0.0):
+            raise ValueError(f"ground_climb_mps must be >= 0 (got {ground_climb_mps!r})")
+        self._flown = False
+        self._rest_t = None  # when the vehicle, having flown, first came to rest on the ground
         vp = self.params
         self.physics_dt = float(physics_dt)
         if not (math.isfinite(self.physics_dt) and self.physics_dt > 0.0):
@@ -488,8 +503,33 @@ class SimVehicle:
             # a height estimate that drifts (a barometer's): it reads higher by this much each
             # second; the vehicle's own controllers fly on the truth or their estimate as before
             pos[2] -= self.height_drift_mps * self.time
-        return Reported(self.time, pos, y[3:6].copy(), q, e,
+        vel = y[3:6].copy()
+        if self.ground_climb_mps:
+            self._ground_climb(pos, vel)
+        return Reported(self.time, pos, vel, q, e,
                         y[phys.IX_W:phys.IX_W + 3].copy())
+
+    def _ground_climb(self, pos, vel):
+        """``ground_climb_mps``: from the first rest on the ground after a flight the estimate
+        reads a climb (up: NED z falling) of that speed, held GROUND_CLIMB_HOLD_S, then dying
+        away in GROUND_CLIMB_DECAY_S; the height it gained stays.  The truth, and the vehicle's
+        own controllers, are untouched.  Judged on the true state each time the state is read."""
+        z = float(self._x[2])
+        if z < -GROUND_CLIMB_FLOWN_M:
+            self._flown = True
+        if self._flown and self._rest_t is None and z >= -GROUND_CLIMB_REST_M:
+            self._rest_t = self.time
+        if self._rest_t is None:
+            return
+        a, hold, tau = self.time - self._rest_t, GROUND_CLIMB_HOLD_S, GROUND_CLIMB_DECAY_S
+        v = self.ground_climb_mps
+        if a <= hold:
+            rise, speed = v * a, v
+        else:
+            e = math.exp(-(a - hold) / tau)
+            rise, speed = v * (hold + tau * (1.0 - e)), v * e
+        pos[2] -= rise
+        vel[2] -= speed
 
     def true_disturbance(self):
         """Acceleration (NED, m/s^2) the environment adds beyond rotor thrust and gravity.

@@ -144,6 +144,8 @@ def test_the_hover_thrust_learnt_in_flight_is_recorded_and_said(tmp_path):
     from mavadrc.flight import print_table
 
     summary, _ = fly_quiet(load_mission(MISSIONS / "hover.yaml"), tmp_path)
+    # PX4's land detector agreeing at once: disarmed by the companion's command, never refused
+    assert summary["disarm"]["by"] == "command" and summary["disarm"]["refused_s"] is None
     assert summary["hover_thrust_learnt"] == pytest.approx(summary["hover_thrust"], rel=0.02)
     table = io.StringIO()
     print_table(summary, table)
@@ -157,6 +159,7 @@ def test_the_hover_thrust_learnt_in_flight_is_recorded_and_said(tmp_path):
 def test_ardupilot_path_sets_guid_options_and_flies(tmp_path):
     summary, _ = fly_quiet(load_mission(MISSIONS / "ardupilot_hover.yaml"), tmp_path)
     assert summary["autopilot"] == "ardupilot" and summary["landed"]
+    assert summary["disarm"]["by"] == "land mode"  # ArduCopter's LAND, as always there
     assert summary["max_error_m"] < 0.12  # the safe defaults (no input model): 0.088 m
     assert summary["motor_delay_s"] == 2.0  # ArduCopter's ARMING_DELAY_SEC
 

@@ -186,6 +186,38 @@ def test_a_drifting_height_estimate_reads_high_and_the_vehicle_holds_on_it():
         SimVehicle("x500", height_drift_mps=math.nan)
 
 
+def test_an_estimate_climbing_on_the_ground_after_the_landing_reads_as_told():
+    """ground_climb_mps: once the vehicle has flown and rests on the ground, the reported
+    height climbs that fast for GROUND_CLIMB_HOLD_S, then ever slower (time constant
+    GROUND_CLIMB_DECAY_S), as PX4 SIH's did; the truth stays on the ground, and nothing of it
+    shows before the landing."""
+    from sim.vehicle import GROUND_CLIMB_DECAY_S as TAU, GROUND_CLIMB_HOLD_S as HOLD
+    v = SimVehicle("x500", ground_climb_mps=0.4, auto_disarm_s=None)
+    v.step(1.0)  # on the ground, never flown: no climb
+    assert v.reported().velocity[2] == pytest.approx(0.0, abs=1e-9)
+    v.arm()
+    v.takeoff(2.0)
+    v.step(8.0)
+    assert v.reported().position[2] == pytest.approx(v.state[2], abs=1e-9)  # in flight: truth
+    v.land()
+    while v.state[2] < -1e-3:
+        v.step(0.01)
+        v.reported()  # read every step, as the server does
+    t0 = v.time
+    v.step(HOLD / 2)
+    r = v.reported()
+    assert r.velocity[2] == pytest.approx(-0.4, abs=0.02)
+    assert r.position[2] == pytest.approx(-0.4 * (v.time - t0), abs=0.03)
+    v.step(HOLD / 2 + TAU)  # one time constant into the decay
+    r = v.reported()
+    assert r.velocity[2] == pytest.approx(-0.4 / math.e, abs=0.02)
+    assert r.position[2] == pytest.approx(-0.4 * (HOLD + TAU * (1 - 1 / math.e)), abs=0.04)
+    assert v.state[2] == pytest.approx(0.0, abs=1e-6)  # the truth sits on the ground
+    assert v.state[5] == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ValueError, match="ground_climb_mps"):
+        SimVehicle("x500", ground_climb_mps=-0.1)
+
+
 TURBULENT = {"components": [{"type": "constant", "speed": 3.0, "direction_from_deg": 45.0},
                             {"type": "dryden", "intensity": "light"}]}
 
