@@ -284,6 +284,25 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
     assert "disarmed (by PX4's land mode)" in text
 
 
+def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, monkeypatch):
+    """The land mode handed the landing does not disarm within the bound (here 6 s after the
+    cut, for a test's length; the estimate climbing 2 m/s, so the bundled PX4's detector doubts
+    for 12 s): the flight escalates, its failsafe watches the land mode to the disarm, and the
+    summary says disarmed but not landed, with the reason."""
+    import mavadrc.ground as G
+    monkeypatch.setattr(G, "DISARM_BOUND_S", 6.0)
+    srv, link = lossy_vehicle(link_seed=19, ground_climb_mps=2.0)
+    try:
+        summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
+    finally:
+        stop(srv, link)
+    assert summary["touchdown_seen"] and summary["disarmed"]
+    assert not summary["landed"]
+    assert summary["aborted"] == ["the vehicle did not disarm within 6 s of touchdown"]
+    assert "its land mode takes the landing over" in text
+    assert summary["disarm"]["by"] == "land mode"
+
+
 def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     """PX4 SIH, once: the estimate read 0.09 m high when the vehicle met the ground, still in
     the land segment, and then climbed 0.2 m/s while it sat there; touchdown was seen by the
