@@ -75,6 +75,8 @@ TIPPED_COS = math.cos(math.radians(45.0))
 #: lockstep: the least telemetry timeout (s); the vehicle waits on us, so a machine busy
 #: elsewhere slows the answer without any link being lost
 LOCKSTEP_STALE_S = 5.0
+#: s within which the vehicle's same words again are counted, not shown (:meth:`Flight.on_text`)
+TEXT_QUIET_S = 10.0
 #: wall time (s) for a mode or arming change to show in the heartbeat once accepted
 CONFIRM_S = 3.0
 #: the heading turns from the vehicle's to the mission's at this rate (rad/s): PX4's
@@ -648,6 +650,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         #: how the vehicle came to be disarmed after touchdown: "command" (ours), "land mode"
         #: (the autopilot's, handed the landing), None (not by either)
         self.disarm_how = None
+        self._texts_shown = {}  # the vehicle's words: [wall time last shown, times unshown since]
         self.disarm_refused_s = None  # s the disarm was refused before the land mode took over
         self.disarm_after_s = None  # s from the thrust cut to the disarm seen
         self._error = None  # why the flight was refused before anything flew
@@ -668,8 +671,19 @@ class Flight(Preflight, GroundPhases, Failsafes):
                           "up; the flight goes on, what the console cannot say is written here")
 
     def on_text(self, severity, text):
+        """The vehicle's words, each on the console; the same words again within
+        :data:`TEXT_QUIET_S` of their last showing are counted, not shown, and the count is
+        said with them next time (PX4, refusing a disarm asked for every second, said "disarming
+        denied: not landed" and its answer 18 times each in 18 s)."""
         self.texts.append(text)
-        self.console.vehicle(text)
+        now = time.monotonic()
+        shown = self._texts_shown.get(text)
+        if shown is not None and now - shown[0] < TEXT_QUIET_S:
+            shown[1] += 1
+            return
+        more = f" (and {shown[1]} times more since)" if shown is not None and shown[1] else ""
+        self._texts_shown[text] = [now, 0]
+        self.console.vehicle(text + more)
 
     def mode_name(self, custom_mode=None):
         if custom_mode is None:

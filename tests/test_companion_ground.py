@@ -282,6 +282,10 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
     land = 4 << 16 | 6 << 24  # PX4's AUTO.LAND (main mode 4, sub mode 6) in custom_mode
     assert land in modes, [hex(m) for m in set(modes)]
     assert "disarmed (by PX4's land mode)" in text
+    # asked every second, refused each time: the console shows the refusal once in 10 s
+    refusals = summary["vehicle_messages"].count("Disarming denied: not landed")
+    assert refusals >= 4
+    assert text.count("  vehicle: Disarming denied: not landed") < refusals / 2
 
 
 def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, monkeypatch):
