@@ -249,8 +249,13 @@ class GroundPhases:
         return True
 
     def _because(self):
-        """The vehicle's latest words, if any came in the last seconds."""
-        return f" ({self.texts[-1]})" if self.texts else ""
+        """The vehicle's latest words of its own (its reason, as "Disarming denied: not
+        landed"), not a command's answer, which the caller names already; "" if none among the
+        last three."""
+        for text in reversed(self.texts[-3:]):
+            if not text.startswith("MAV_CMD_"):
+                return f" ({text})"
+        return ""
 
     def _ph_spoolup(self, s):
         self._spool(s)

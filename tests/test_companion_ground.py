@@ -272,7 +272,7 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
         stop(srv, link)
     assert summary["landed"], (summary["aborted"], text)
     assert summary["disarmed"] and not summary["aborted"]
-    assert "disarm refused (TEMPORARILY_REJECTED)" in text
+    assert "disarm refused (TEMPORARILY_REJECTED) (Disarming denied: not landed)" in text
     assert "PX4's landing detector still reads the vehicle in the air (its estimate: " in text
     assert "climbing" in text and "its land mode takes the landing over" in text
     d = summary["disarm"]
