@@ -50,6 +50,12 @@ GAP_GROWTH = 0.05
 #: touchdown also: the vertical disturbance estimate holds up this share of g (the ground carries
 #: the vehicle's weight), the reference below it, for SETTLED_S, whatever the velocity reads
 CARRIED_SHARE = 0.6
+#: a touchdown seen unscores the steps from the contact: where the vertical disturbance estimate
+#: began to hold up more than this share of g (and held it to the last scored step).  PX4 SIH,
+#: s31d-1: its height estimate 0.1 m up, the vehicle met the ground before the land segment's
+#: end and the estimate sank on with the reference (no lead); the disturbance estimate went from
+#: -0.03..-0.08 g in the descent to -0.22 g at the contact and -0.3..-0.5 g after
+CONTACT_HELD_SHARE = 0.15
 #: mid-mission, the same with the thrust commanded within this of its floor (normalised)
 CARRIED_THRUST_MARGIN = 0.05
 CUT_S = 0.5  # thrust ramp down after touchdown
@@ -325,7 +331,8 @@ class GroundPhases:
             # on the ground before the land segment ended, where the height estimate had
             # drifted up (PX4 SIH: 0.09 m at the contact, then climbing 0.2 m/s): its last
             # scored second was the ground's push, 0.24 m of "error", not tracking
-            self.recorder.unscore_from_contact(min_growth=GAP_GROWTH)
+            self.recorder.unscore_from_contact(min_growth=GAP_GROWTH,
+                                               held=CONTACT_HELD_SHARE * GRAVITY)
             return self._touched_down(s, thrust, how)
         bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
         if tau > bound:

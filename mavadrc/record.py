@@ -379,6 +379,7 @@ class Recorder:
         self.yaw = 0.0
         self.true_dist = np.full(3, math.nan)
         self.t, self.ref, self.pos = [], [], []
+        self.carried = []  # per scored step: the vertical disturbance estimate (m/s^2, NED)
         self._row = None  # the last control step's row, waiting for its attitude and truth
         self._row_ms = None
         self._row_have = 0
@@ -406,23 +407,36 @@ class Recorder:
         self.t.append(t)
         self.ref.append(r.pos)
         self.pos.append(s.pos)
+        self.carried.append(float(z[2, 2]) if self.kind != "pd" else math.nan)
 
-    def unscore_from_contact(self, window_s=3.0, min_growth=0.0):
+    def unscore_from_contact(self, window_s=3.0, min_growth=0.0, held=None):
         """A vehicle resting on the ground stopped following the reference down where, within
         the last ``window_s`` of scored steps, the reference was least below it (down:
         reference minus position, smallest); the steps from there on no longer count in the
         error figures (they stay in the table).  Left as they are when the reference's lead
         grew by less than ``min_growth`` (m) from there to the last scored step (it was still
-        followed)."""
+        followed).  ``held`` (m/s^2): also from where the ground began to hold the vehicle up,
+        when it still did at the last scored step: the start of the run of steps, ending
+        there, whose vertical disturbance estimate pushed up by more than that (an estimate
+        sinking with the reference on the ground shows no lead at all)."""
         if not self.t:
             return
         t = np.asarray(self.t)
         first = int(np.searchsorted(t, t[-1] - window_s, side="left"))
         lead = [r[2] - p[2] for r, p in zip(self.ref[first:], self.pos[first:])]
-        if lead[-1] - min(lead) < min_growth:
-            return
-        keep = first + int(np.argmin(lead))
-        del self.t[keep:], self.ref[keep:], self.pos[keep:]
+        cuts = []
+        if lead[-1] - min(lead) >= min_growth:
+            cuts.append(first + int(np.argmin(lead)))
+        if held is not None:
+            up = np.asarray(self.carried[first:]) < -held
+            if up[-1]:
+                run = len(up) - 1
+                while run > 0 and up[run - 1]:
+                    run -= 1
+                cuts.append(first + run)
+        if cuts:
+            keep = min(cuts)
+            del self.t[keep:], self.ref[keep:], self.pos[keep:], self.carried[keep:]
 
     def sample_came(self):
         """A new position sample: the pending row gets whatever of its parts came."""

@@ -136,3 +136,58 @@ def test_on_the_ground_with_the_velocity_estimate_reading_a_descent_is_contact()
     flat = rows.copy()
     flat[:, 2] = flat[:, 0] * 0.25 + flat[0, 2]
     assert _judge_rows(flat) is None
+
+
+def _recorded(rows, kind="ladrc"):
+    """A Recorder fed the rows (t, reference and position north/east/down, z3) as scored steps,
+    as a flight feeds it (its table a list)."""
+    from mavadrc.record import Recorder
+    table = types.SimpleNamespace(rows=[])
+    table.row = table.rows.append
+    rec = Recorder(types.SimpleNamespace(table=table), kind)
+    for t, rx, ry, rz, px, py, pz, z3 in rows:
+        z = np.zeros((3, 3))
+        z[2, 2] = z3
+        ctrl = types.SimpleNamespace(z=z, td=np.zeros((3, 2)), accel_command=np.zeros(3),
+                                     accel_applied=np.zeros(3), drag=np.zeros(3),
+                                     models_drag=False)
+        r = types.SimpleNamespace(pos=np.array([rx, ry, rz]), vel=np.zeros(3), acc=np.zeros(3),
+                                  yaw=0.0)
+        s = types.SimpleNamespace(t=t, pos=np.array([px, py, pz]), vel=np.zeros(3), dt=0.01,
+                                  age=0.0)
+        rec.step(t, "land", r, s, ctrl, (1.0, 0.0, 0.0, 0.0), 0.5)
+    return rec
+
+
+def test_the_steps_on_the_ground_before_the_land_segments_end_are_not_scored():
+    """The steps flown (tests/data/px4_sih_contact_in_land.txt; PX4 SIH, the thesis spiral): the
+    vehicle met the ground 0.1 m up by its estimate, 1.1 s before the land segment's end, and the
+    estimate sank on with the reference, so the reference never went on below it.  Touchdown
+    was seen in the final descent after; judged by the lead alone, the land segment's last
+    second stayed scored, and its 0.11 m (the estimate moving on the ground) was the flight's
+    reported max error, where its flight had kept 0.08.  The ground holding the vehicle up (the
+    vertical disturbance estimate) from the contact on marks where the scoring ends."""
+    from mavadrc.control.geometry import GRAVITY
+    from mavadrc.ground import CONTACT_HELD_SHARE, GAP_GROWTH
+    rows = np.loadtxt(DATA / "px4_sih_contact_in_land.txt")
+    contact = 75.20  # SIH's truth: still from here
+    rec = _recorded(rows)
+    assert rec.errors()["max_error_m"] > 0.1  # all of it: the case flown
+    rec.unscore_from_contact(min_growth=GAP_GROWTH)
+    assert rec.t[-1] == rows[-1, 0]  # by the lead alone: nothing unscored (as flown)
+    rec.unscore_from_contact(min_growth=GAP_GROWTH, held=CONTACT_HELD_SHARE * GRAVITY)
+    assert contact <= rec.t[-1] < contact + 0.15, rec.t[-1]
+    assert rec.errors()["max_error_m"] < 0.09  # the descent flown: 0.081 at 74.7 s
+    assert len(rec.carried) == len(rec.t) == len(rec.pos)
+    # a descent whose disturbance estimate never held it up (flown on): nothing unscored
+    calm = rows.copy()
+    calm[:, 7] = -0.5
+    rec = _recorded(calm)
+    rec.unscore_from_contact(min_growth=GAP_GROWTH, held=CONTACT_HELD_SHARE * GRAVITY)
+    assert rec.t[-1] == rows[-1, 0]
+    # nor a push up that had ended before the last step (a gust in the descent)
+    gust = calm.copy()
+    gust[(gust[:, 0] > 74.0) & (gust[:, 0] < 75.0), 7] = -4.0
+    rec = _recorded(gust)
+    rec.unscore_from_contact(min_growth=GAP_GROWTH, held=CONTACT_HELD_SHARE * GRAVITY)
+    assert rec.t[-1] == rows[-1, 0]
