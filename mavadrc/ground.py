@@ -450,8 +450,7 @@ class GroundPhases:
             return self._end_disarmed(hb, "disarmed" + (
                 f" (by {self.seq.title}'s land mode)" if self.disarm_how == "land mode" else ""))
         c = self._cmd
-        if not self.seq.land_to_disarm and self.disarm_how != "land mode" and \
-                self._disarm_refused_wall is not None and \
+        if not self._land_mode_disarms() and self._disarm_refused_wall is not None and \
                 now - self._disarm_refused_wall >= LAND_HANDOVER_S and (c is None or c.done):
             self.disarm_how = "land mode"
             self.disarm_refused_s = now - self._disarm_refused_wall
@@ -459,11 +458,11 @@ class GroundPhases:
                      f"{self._estimate_now()}: its land mode takes the landing over, to disarm "
                      "it once the detector agrees")
             c = self._cmd = None
-        if self.seq.land_to_disarm or self.disarm_how == "land mode":
-            self.disarm_how = "land mode"
+        if self._land_mode_disarms():
             if c is None or (c.done and c.cmd == M.MAV_CMD_NAV_LAND and not c.accepted
                              and now - c.acked_wall > 1.0):
-                if c is None and self.seq.land_to_disarm:
+                if c is None and self.disarm_how is None:  # ArduPilot: from the start
+                    self.disarm_how = "land mode"
                     self.say(f"on the ground: {self.seq.title}'s land mode disarms it")
                 self._cmd = self.link.command(M.MAV_CMD_NAV_LAND)
             elif not self.seq.land_to_disarm and c.done and (
@@ -485,6 +484,11 @@ class GroundPhases:
         if since > DISARM_BOUND_S:
             self._escalate("disarm_timeout", f"the vehicle did not disarm within "
                                              f"{DISARM_BOUND_S:g} s of touchdown")
+
+    def _land_mode_disarms(self):
+        """Whether the autopilot's land mode is to disarm the vehicle: ArduPilot's always
+        (:attr:`~mavadrc.sequence.Sequence.land_to_disarm`), PX4's once handed the landing."""
+        return self.seq.land_to_disarm or self.disarm_how == "land mode"
 
     def _estimate_now(self):
         """' (its estimate: 0.62 m above the takeoff spot, climbing 0.35 m/s)', from the last
