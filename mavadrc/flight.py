@@ -926,9 +926,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self._note_scaling(gains) is not None:
             f, design = self.gains_scaled["factor"], self.gains_scaled["design_lag_s"]
             name = getattr(self.m.vehicle, "name", self.m.vehicle)
-            given_wo = self.m.controller.gains.get("wo")
-            kept = given_wo is not None and "wo" in gains and \
-                float(gains["wo"][0]) == float(given_wo[0])
+            kept = self.gains_scaled.get("wo_factor") == 1.0
             what = (f"horizontal wc x{f:.2f}, to keep its delay margin (wo as given: the "
                     "observers model the lag)" if kept else
                     f"horizontal wc and wo x{f:.2f}, to keep their delay margin")
@@ -970,15 +968,20 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _note_scaling(self, gains):
         """``gains_scaled`` for the gains flown: the factor by which :func:`scale_to_vehicle`
-        slowed the mission's own horizontal wc, and the lags they were chosen for (None: flown
-        as given).  Returns it."""
+        slowed the mission's own horizontal wc (``factor``) and wo (``wo_factor``, when the
+        mission gives wo: 1 where the observers kept their bandwidth), and the lags they were
+        chosen for (None: flown as given).  Returns it."""
         design, given = self._design_lag(), self.m.controller.gains.get("wc")
+        given_wo = self.m.controller.gains.get("wo")
         self.gains_scaled = None
         if design is not None and given is not None and "wc" in gains:
             f = float(gains["wc"][0]) / float(given[0])
             if f < 1.0:
                 self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
                                      "factor": round(f, 3)}
+                if given_wo is not None and "wo" in gains:
+                    self.gains_scaled["wo_factor"] = round(
+                        float(gains["wo"][0]) / float(given_wo[0]), 3)
         return self.gains_scaled
 
     def _refine_step(self, s, t):

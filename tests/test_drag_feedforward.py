@@ -323,6 +323,10 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert 0.22 < lag < 0.32
     assert 0.3 < f < 0.7
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * f, abs=0.01)
+    # the observers model the lag: they keep the mission's wo, and the record says so
+    assert s["gains_scaled"]["wo_factor"] == 1.0
+    assert s["controller_flown"]["wo"][0] == pytest.approx(23.9)
+    assert "(wo as given: the observers model the lag)" in out
     assert s["attitude_oscillation"]["amplitude_deg"] < 2.5
     # the margin's warning (a limit cycle likely) is held against the swing flown
     assert s["attitude_oscillation"]["limit_cycle"] is False
