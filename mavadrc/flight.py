@@ -331,6 +331,9 @@ def fit_and_make(d, windows, flown, spec, kind, rate, hover, designed_for, drag=
     rec["made_in_s"] = round(time.perf_counter() - t0, 3)
     return rec, ctrl, gains, margin
 
+#: summary.json's vehicle_messages: the vehicle's first and last texts kept (the rest counted)
+TEXTS_KEPT = (20, 30)
+
 #: the drag learnt this long (s) before the identify segment is fitted again with it known
 REFINE_AFTER_S = 6.0
 #: and the lag refitted flown only when it moves by more than this share
@@ -1718,7 +1721,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "takeover": self.takeover,
             "sources": dict(self.sources),
             "warnings": list(self.warnings),
-            "vehicle_messages": self.texts[-50:],
+            # the first (the arming's) and the last (the landing's) when there are many
+            "vehicle_messages": (self.texts if len(self.texts) <= TEXTS_KEPT[0] + TEXTS_KEPT[1]
+                                 else self.texts[:TEXTS_KEPT[0]] + self.texts[-TEXTS_KEPT[1]:]),
+            "vehicle_messages_left_out": max(0, len(self.texts) - sum(TEXTS_KEPT)),
         }
         if self.ctrl is not None:
             summary["delay_margin_s"] = margin_record(self.delay_margin)

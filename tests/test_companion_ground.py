@@ -292,9 +292,12 @@ def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, mo
     """The land mode handed the landing does not disarm within the bound (here 6 s after the
     cut, for a test's length; the estimate climbing 2 m/s, so the bundled PX4's detector doubts
     for 12 s): the flight escalates, its failsafe watches the land mode to the disarm, and the
-    summary says disarmed but not landed, with the reason."""
+    summary says disarmed but not landed, with the reason.  Its many texts are kept in
+    summary.json as the first and the last few (here 3 and 5), the rest counted."""
+    import mavadrc.flight as F
     import mavadrc.ground as G
     monkeypatch.setattr(G, "DISARM_BOUND_S", 6.0)
+    monkeypatch.setattr(F, "TEXTS_KEPT", (3, 5))
     srv, link = lossy_vehicle(link_seed=19, ground_climb_mps=2.0)
     try:
         summary, _, text = fly_through(link, short_mission(tmp_path, hover=1), tmp_path)
@@ -305,6 +308,10 @@ def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, mo
     assert summary["aborted"] == ["the vehicle did not disarm within 6 s of touchdown"]
     assert "its land mode takes the landing over" in text
     assert summary["disarm"]["by"] == "land mode"
+    kept, left = summary["vehicle_messages"], summary["vehicle_messages_left_out"]
+    assert len(kept) == 8 and left > 0, (kept, left)
+    assert "Armed by external command" in kept[:3], kept  # the arming's
+    assert kept[-1] == "Disarmed by landing", kept  # and the landing's
 
 
 def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
