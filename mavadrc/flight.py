@@ -48,8 +48,8 @@ from .control import PositionController
 from .control.geometry import GRAVITY, thrust_for_tilt
 from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, CONTACT_HELD_SHARE, SETTLED_S,
-                     TAKEOFF_RAMP_PER_S, TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, GroundPhases,
+from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, TAKEOFF_RAMP_PER_S,
+                     TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, GroundPhases,
                      landing_tilt, lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
@@ -1464,7 +1464,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             if how is not None:
                 # on the ground before the reference: the height estimate has drifted; what
                 # follows is the ground's push, not tracking, and is not scored
-                self.recorder.unscore_from_contact(held=CONTACT_HELD_SHARE * GRAVITY)
+                self._unscore_from_contact()
                 self.say(f"on the ground {self.origin[2] - s.pos[2]:.2f} m above the takeoff "
                          "spot by the height estimate, before the land segment's end")
                 return self._touched_down(s, thrust, how)
@@ -1722,7 +1722,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "sources": dict(self.sources),
             "warnings": list(self.warnings),
             # the first (the arming's) and the last (the landing's) when there are many
-            "vehicle_messages": (self.texts if len(self.texts) <= TEXTS_KEPT[0] + TEXTS_KEPT[1]
+            "vehicle_messages": (self.texts if len(self.texts) <= sum(TEXTS_KEPT)
                                  else self.texts[:TEXTS_KEPT[0]] + self.texts[-TEXTS_KEPT[1]:]),
             "vehicle_messages_left_out": max(0, len(self.texts) - sum(TEXTS_KEPT)),
         }

@@ -331,8 +331,7 @@ class GroundPhases:
             # on the ground before the land segment ended, where the height estimate had
             # drifted up (PX4 SIH: 0.09 m at the contact, then climbing 0.2 m/s): its last
             # scored second was the ground's push, 0.24 m of "error", not tracking
-            self.recorder.unscore_from_contact(min_growth=GAP_GROWTH,
-                                               held=CONTACT_HELD_SHARE * GRAVITY)
+            self._unscore_from_contact(min_growth=GAP_GROWTH)
             return self._touched_down(s, thrust, how)
         bound = 5.0 + max(0.0, self.origin[2] - self._descent_from[2] + 1.0) / speed
         if tau > bound:
@@ -484,6 +483,13 @@ class GroundPhases:
         if since > DISARM_BOUND_S:
             self._escalate("disarm_timeout", f"the vehicle did not disarm within "
                                              f"{DISARM_BOUND_S:g} s of touchdown")
+
+    def _unscore_from_contact(self, min_growth=0.0):
+        """The steps since the ground met the vehicle leave the error figures
+        (:meth:`~mavadrc.record.Recorder.unscore_from_contact`: where the reference went on
+        below it, or where the ground began to hold it up, :data:`CONTACT_HELD_SHARE`)."""
+        self.recorder.unscore_from_contact(min_growth=min_growth,
+                                           held=CONTACT_HELD_SHARE * GRAVITY)
 
     def _land_mode_disarms(self):
         """Whether the autopilot's land mode is to disarm the vehicle: ArduPilot's always
