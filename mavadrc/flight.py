@@ -152,7 +152,7 @@ def drag_learn_memory(spec, kind=None):
 
 
 def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", identified=None,
-                  drag=None, designed_for=None, dead_time=None):
+                  drag=None, designed_for=None, dead_time=None, margin_floor=0.0):
     """The gains a controller spec flies as ``kind``, in the mission's own terms (``wc``,
     ``wo``, ``input_lag``, ...): the defaults, overridden by the spec's gains where it is of
     that kind (another kind, ``--controller``, flies the defaults, keeping only the vehicle's
@@ -161,7 +161,10 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     (:mod:`mavadrc.identify`), ``drag: auto`` (its default with ``input_lag: auto``) by the
     ``drag`` identified with them (None: none).  The mission's own ``wc`` and ``wo`` with
     ``input_lag: auto`` are slowed by :func:`scale_to_vehicle` when the vehicle identified is
-    slower than the one they were chosen for (``designed_for``: its lags; None: not known).
+    slower than the one they were chosen for (``designed_for``: its lags; None: not known),
+    and, whatever they were chosen for, until they keep ``margin_floor`` of the horizontal lag
+    as delay margin (a flight passes :data:`MISSION_MARGIN_FLOOR`; the fast path, which
+    studies the gains as given, 0).
     ``dead_time`` (s per axis, with ``identified``): the observers' input model is shaped as
     identified, that dead time and :data:`mavadrc.identify.ORDER` equal lags sharing the rest
     of the 63 % time (``input_dead_time``, ``input_lags``); the rules that slow the gains judge
@@ -195,10 +198,12 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
     if identified is not None and gains.get("drag") == "auto":
         # None: the identification gave lags only (a caller's), no drag to model
         gains["drag"] = (0.0,) * 3 if drag is None else tuple(float(x) for x in drag)
-    if gains.get("input_lag") == "auto" and identified is not None and designed_for is not None \
+    if gains.get("input_lag") == "auto" and identified is not None \
             and kind in ("ladrc", "adrc") and ("wc" in given or "wo" in given):
-        gains, _ = scale_to_vehicle(spec, kind, gains, tuple(float(x) for x in identified),
-                                    tuple(float(x) for x in designed_for), dead_time)
+        gains, _ = scale_to_vehicle(
+            spec, kind, gains, tuple(float(x) for x in identified),
+            None if designed_for is None else tuple(float(x) for x in designed_for), dead_time,
+            floor=margin_floor)
     shaped = gains.get("input_lag") == "auto" and identified is not None and \
         dead_time is not None
     if gains.get("input_lag") == "auto" and identified is not None and kind in ("ladrc", "adrc") \
@@ -304,12 +309,14 @@ def _run_once(ctrl):
     ctrl.reset()
 
 
-def fit_and_make(d, windows, flown, spec, kind, rate, hover, designed_for, drag=None):
+def fit_and_make(d, windows, flown, spec, kind, rate, hover, designed_for, drag=None,
+                 margin_floor=0.0):
     """The fit of an identify segment's samples ``d`` (rows: t, the acceleration applied, the
     velocity, the sample's age; ``windows`` and ``flown`` as :func:`fit_flight` takes them;
     ``drag``: known per axis, else fitted) and, if it holds, the controller of ``kind`` that
     ``spec`` makes with it at ``rate`` (``designed_for``: the lags the spec's own gains were
-    chosen for, :func:`design_lag`): (record, controller or None, gains, delay margin).  The
+    chosen for, :func:`design_lag`; ``margin_floor`` as :func:`resolve_gains` takes it):
+    (record, controller or None, gains, delay margin).  The
     record says how long the fit took (``fit_s``) and the whole of it, the controller and its
     margins made (``made_in_s``).  Whole in the fits' own process in real time: the margins
     are a few hundred ms of kernels that would hold the loop's interpreter too."""
@@ -320,7 +327,7 @@ def fit_and_make(d, windows, flown, spec, kind, rate, hover, designed_for, drag=
         return rec, None, None, None
     gains = resolve_gains(spec, kind, identified=observer_lag(rec, spec),
                           drag=observer_drag(rec), designed_for=designed_for,
-                          dead_time=observer_dead_time(rec, spec))
+                          dead_time=observer_dead_time(rec, spec), margin_floor=margin_floor)
     ctrl, margin = built(spec, hover, kind, rate, gains)
     rec["delay_margin_s"] = margin_record(response_margin(ctrl, rec, spec))
     # what the rules that slow the gains (and Flight._identified's warning) judge: the same
@@ -351,6 +358,16 @@ SCALE_TOLERANCE = 1.15
 #: reading by hand had said 2.3-2.4): the loop answering the estimate's noise, and slowing them further (wc 1.6) traded
 #: the swing for a slow error twice as large (README, "Flown in flight against real autopilots").
 MISSION_MARGIN_SHARE = 0.35
+#: the share of the identified horizontal lag a mission's own gains keep as delay margin in a
+#: flight, whatever they were chosen for: a mission that names the vehicle flown as its own (or
+#: none) is never "slower than its design", and without this floor flew any gains it gave.  On the
+#: bundled PX4 SIH quad in lockstep, thesis_spiral_wind's wc 4 named for it kept 11 % and swung
+#: +-24.9 deg at 0.98 Hz (0.153 m) while the console said the margin was short; slowed to keep
+#: 20 % (wc 2.87) it flew 0.053 m, +-5.1 deg.  Lower than MISSION_MARGIN_SHARE: a mission's
+#: gains on their own vehicle are the author's to choose, down to what a real loop survives.
+#: A rule of flight, as the slowing for a slower vehicle is: the fast path (compare, tune, the
+#: robustness study) flies the gains as given, to show where they break.
+MISSION_MARGIN_FLOOR = 0.2
 
 
 def _judged(gains, lag, dead_time):
@@ -366,11 +383,42 @@ def _judged(gains, lag, dead_time):
     return out
 
 
-def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observers=True):
+def slower_than(lag, design):
+    """Whether a vehicle answering with the lags ``lag`` (s per axis) is slower horizontally than
+    the one whose lags are ``design`` (None: not known, never) by more than the identification's
+    accuracy (:data:`SCALE_TOLERANCE`)."""
+    if design is None:
+        return False
+    quick = max(design[0], design[1])
+    return quick > 0.0 and max(lag[0], lag[1]) > SCALE_TOLERANCE * quick
+
+
+def margin_need(spec, kind, gains, lag, design, floor=MISSION_MARGIN_FLOOR):
+    """The delay margin (s) a mission's own ``gains`` must keep on a vehicle whose lags are
+    ``lag``, and why: ("slower", s) on a vehicle slower than their ``design``
+    (:func:`slower_than`): the share of the lag they kept on their own vehicle, up to
+    :data:`MISSION_MARGIN_SHARE`; ("margin", s) where ``floor`` (a share) of the lag asks
+    more (whatever the design, None included)."""
+    slow = max(lag[0], lag[1])
+    floor = floor * slow
+    if slower_than(lag, design):
+        quick = max(design[0], design[1])
+        own = delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind,
+                                           gains={**gains, "input_lag": tuple(design)}))
+        need = min(own / quick, MISSION_MARGIN_SHARE) * slow
+        if need >= floor:
+            return "slower", need
+    return "margin", floor
+
+
+def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observers=True,
+                     floor=MISSION_MARGIN_FLOOR):
     """The mission's ``wc`` and ``wo`` (chosen for a vehicle whose lags are ``design``, s per
     axis) for one whose lags are ``lag``.  Where the horizontal lag exceeds the design's by more
     than :data:`SCALE_TOLERANCE`, the gains must keep, as a share of the lag, the delay margin
-    they had on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`; if they do not, the
+    they had on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`; on any vehicle (``design``
+    None: not known) at least ``floor`` of it (:func:`margin_need`); if they
+    do not, the
     horizontal ``wc`` and ``wo`` are scaled down by one factor until they do (the loop designed,
     in slower time: a loop whose gains and plant lag scale together is the same loop, time
     stretched, with the same margin as a share of the lag).  Then the observers get their own
@@ -383,10 +431,6 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observ
     than given; the vertical loop, which answers through the thrust in 0.01-0.1 s on every
     vehicle flown, is left as given.  Returns (gains, the horizontal factor of ``wc``: 1 when
     left as given)."""
-    slow, quick = max(lag[0], lag[1]), max(design[0], design[1])
-    if not (quick > 0.0 and slow > SCALE_TOLERANCE * quick):
-        return gains, 1.0
-
     def scaled(f, keys=("wc", "wo")):  # the horizontal wc (and wo) times f
         return {**gains, **{key: tuple(round(f * float(w), 3) if i < 2 else float(w)
                                        for i, w in enumerate(gains[key]))
@@ -396,7 +440,7 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observ
         g = _judged(scaled(f, keys), plant, dead)
         return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
 
-    need = min(margin(1.0, design) / quick, MISSION_MARGIN_SHARE) * slow
+    _, need = margin_need(spec, kind, gains, lag, design, floor)
     if margin(1.0, lag, dead_time) >= need:
         return gains, 1.0
     lo, hi = 0.05, 1.0
@@ -774,7 +818,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 drag=observer_drag(self.identification) if self.identification else None,
                 designed_for=self._design_lag() if self.identification else None,
                 dead_time=(observer_dead_time(self.identification, self.m.controller)
-                           if self.identification else None))
+                           if self.identification else None),
+                margin_floor=MISSION_MARGIN_FLOOR)
         return self.kind, self.gains
 
     def _make_controller(self, hover):
@@ -895,7 +940,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         here: (record, controller or None, gains, delay margin)."""
         job = (d, self._id_windows, f"in flight, on system {self.link.target_system} "
                f"({self.link.autopilot})", self.m.controller, self.kind, self.rate,
-               self.hover, self._design_lag(), drag)
+               self.hover, self._design_lag(), drag, MISSION_MARGIN_FLOOR)
         if self._fitter is None:
             out = fit_and_make(*job)
         else:
@@ -933,9 +978,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
             what = (f"horizontal wc x{f:.2f}, to keep its delay margin (wo as given: the "
                     "observers model the lag)" if kept else
                     f"horizontal wc and wo x{f:.2f}, to keep their delay margin")
-            self.say(f"the mission's gains were chosen for a vehicle answering in "
-                     f"{design[0]:.3f} s horizontally ({name}); this one takes "
-                     f"{gains['input_lag'][0]:.3f} s: {what}")
+            if self.gains_scaled["because"] == "slower":
+                self.say(f"the mission's gains were chosen for a vehicle answering in "
+                         f"{design[0]:.3f} s horizontally ({name}); this one takes "
+                         f"{gains['input_lag'][0]:.3f} s: {what}")
+            else:
+                what = (f"horizontal wc x{f:.2f}" if kept else
+                        f"horizontal wc and wo x{f:.2f}")
+                self.say(f"the mission's gains keep under {MISSION_MARGIN_FLOOR:.0%} of this "
+                         f"vehicle's lag ({gains['input_lag'][0]:.3f} s horizontally) as delay "
+                         f"margin: {what}, to keep that much"
+                         f"{' (wo as given: the observers model the lag)' if kept else ''}")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
@@ -972,16 +1025,24 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def _note_scaling(self, gains):
         """``gains_scaled`` for the gains flown: the factor by which :func:`scale_to_vehicle`
         slowed the mission's own horizontal wc (``factor``) and wo (``wo_factor``, when the
-        mission gives wo: 1 where the observers kept their bandwidth), and the lags they were
-        chosen for (None: flown as given).  Returns it."""
+        mission gives wo: 1 where the observers kept their bandwidth), the lags they were
+        chosen for (``design_lag_s``, None: not known) and why (``because``: "slower", the
+        vehicle is slower than those; "margin", they kept less than
+        :data:`MISSION_MARGIN_FLOOR` of its lag); None: flown as given.  Returns it."""
         design, given = self._design_lag(), self.m.controller.gains.get("wc")
         given_wo = self.m.controller.gains.get("wo")
         self.gains_scaled = None
-        if design is not None and given is not None and "wc" in gains:
+        if self.kind == self.m.controller.kind and given is not None and "wc" in gains:
             f = float(gains["wc"][0]) / float(given[0])
             if f < 1.0:
-                self.gains_scaled = {"design_lag_s": [round(x, 4) for x in design],
-                                     "factor": round(f, 3)}
+                lag = gains.get("input_lag")
+                slower = isinstance(lag, tuple) and slower_than(lag, design)
+                self.gains_scaled = {
+                    "design_lag_s": None if design is None else [round(x, 4) for x in design],
+                    "factor": round(f, 3),
+                    # "slower": kept the margin they had on the vehicle they were chosen for;
+                    # "margin": MISSION_MARGIN_FLOOR of the lag, which they did not keep
+                    "because": "slower" if slower else "margin"}
                 if given_wo is not None and "wo" in gains:
                     self.gains_scaled["wo_factor"] = round(
                         float(gains["wo"][0]) / float(given_wo[0]), 3)
