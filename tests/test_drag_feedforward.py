@@ -263,8 +263,8 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
     """A mission that names the vehicle flown as its own (or names none) is never flown on a
     vehicle "slower than its design", so the rule above never slowed its gains: the spiral's
     wc 4 named for PX4 SIH's quad (63 % in 0.263 s) kept 30 ms there (11 %) and limit-cycled.
-    Whatever the design, a mission's own gains keep MISSION_MARGIN_FLOOR (20 %) of the lag:
-    wc slowed to 2.8, the observers as given, the vertical loop untouched, and no slower than
+    Whatever the design, a mission's own gains keep MISSION_MARGIN_FLOOR (30 %) of the lag:
+    wc slowed to 2.28, the observers as given, the vertical loop untouched, and no slower than
     that floor asks (bisection to 2 %, margins in whole 10 ms periods).  Gains that keep it
     (x500_gusts' wc 2: 140 ms) fly as given, and on a vehicle slower than the design the larger
     need of the two holds.  A rule of flight: resolved without it (the fast path, which
@@ -281,7 +281,7 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
         assert not slower_than(lag, design)
         g = resolve_gains(m.controller, identified=lag, designed_for=design,
                           margin_floor=MISSION_MARGIN_FLOOR)
-        assert 0.6 < g["wc"][0] / 4.0 < 0.8 and g["wc"][0] == g["wc"][1]
+        assert 0.5 < g["wc"][0] / 4.0 < 0.65 and g["wc"][0] == g["wc"][1]
         assert tuple(g["wo"][:2]) == (23.9, 23.9)
         assert g["wc"][2] == 4.25 and g["wo"][2] == 25.4
         assert need <= margin(m.controller, g) < need + 0.02
@@ -295,18 +295,23 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
     kept = resolve_gains(x500.controller, identified=lag, designed_for=None,
                          margin_floor=MISSION_MARGIN_FLOOR)
     assert tuple(kept["wc"]) == (2.0, 2.0, 2.5) and margin(x500.controller, kept) > need
-    # the Crazyflie's design (0.125 s, 32 % kept there) asks more than the floor: wc 2.04
-    slower = resolve_gains(m.controller, identified=lag, designed_for=(0.125, 0.125, 0.05),
+    # the Crazyflie's design (0.125 s, 32 % kept there) asks more than the floor
+    design = (0.1223, 0.1223, 0.0519)
+    slower = resolve_gains(m.controller, identified=lag, designed_for=design,
                            margin_floor=MISSION_MARGIN_FLOOR)
-    assert slower["wc"][0] < 0.8 * g["wc"][0]
+    assert slower["wc"][0] < g["wc"][0]
+    # and on its own vehicle the spiral keeps more than the floor (40 ms, 33 %): as given
+    own = resolve_gains(m.controller, identified=design, designed_for=design,
+                        margin_floor=MISSION_MARGIN_FLOOR)
+    assert tuple(own["wc"]) == (4.0, 4.0, 4.25)
 
 
 def test_a_mission_named_for_the_vehicle_flown_no_longer_limit_cycles(tmp_path, capsys):
     """Over MAVLink (lockstep): the spiral named for the bundled PX4 SIH quad, in calm air,
     identified in flight.  Its wc 4 kept 30 ms of delay margin there and swung +-6.3 deg at
     0.96 Hz, a regular limit cycle (with the breeze, +-24.9 deg), while the console only said
-    "no delay margin".  Held to the floor it flies wc 2.8 (+-1.5 deg, irregular), and the
-    console and summary.json say why."""
+    "no delay margin".  Held to the floor it flies wc 2.3, and the console and summary.json
+    say why."""
     from mavadrc.cli import main
     text = Path("configs/missions/thesis_spiral_wind.yaml").read_text()
     text = text.replace("vehicle: crazyflie\n", "vehicle: px4_sih_quad\n")
@@ -320,9 +325,9 @@ def test_a_mission_named_for_the_vehicle_flown_no_longer_limit_cycles(tmp_path, 
     s = json.loads((folder / "summary.json").read_text())
     scaled = s["gains_scaled"]
     assert scaled["because"] == "margin" and scaled["wo_factor"] == 1.0
-    assert 0.6 < scaled["factor"] < 0.8
+    assert 0.5 < scaled["factor"] < 0.65
     assert s["controller_flown"]["wc"][0] == pytest.approx(4.0 * scaled["factor"], abs=0.01)
-    assert "the mission's gains keep under 20% of this vehicle's lag" in out
+    assert "the mission's gains keep under 30% of this vehicle's lag" in out
     assert s["landed"]
     osc = s["attitude_oscillation"]
     assert osc["limit_cycle"] is False and osc["amplitude_deg"] < 3.0, osc
