@@ -395,32 +395,28 @@ def slower_than(lag, design):
     return quick > 0.0 and max(lag[0], lag[1]) > SCALE_TOLERANCE * quick
 
 
-def margin_need(spec, kind, gains, lag, design, floor=MISSION_MARGIN_FLOOR):
+def margin_need(spec, kind, gains, lag, design, floor):
     """The delay margin (s) a mission's own ``gains`` must keep on a vehicle whose lags are
-    ``lag``, and why: ("slower", s) on a vehicle slower than their ``design``
-    (:func:`slower_than`): the share of the lag they kept on their own vehicle, up to
-    :data:`MISSION_MARGIN_SHARE`; ("margin", s) where ``floor`` (a share) of the lag asks
-    more (whatever the design, None included)."""
+    ``lag``: ``floor`` (a share) of its horizontal lag, whatever the ``design`` (None: not
+    known), and on a vehicle slower than their design (:func:`slower_than`) the share of the
+    lag they kept on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`, where that is more."""
     slow = max(lag[0], lag[1])
-    floor = floor * slow
+    need = floor * slow
     if slower_than(lag, design):
         quick = max(design[0], design[1])
         own = delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind,
                                            gains={**gains, "input_lag": tuple(design)}))
-        need = min(own / quick, MISSION_MARGIN_SHARE) * slow
-        if need >= floor:
-            return "slower", need
-    return "margin", floor
+        need = max(need, min(own / quick, MISSION_MARGIN_SHARE) * slow)
+    return need
 
 
 def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observers=True,
-                     floor=MISSION_MARGIN_FLOOR):
+                     floor=0.0):
     """The mission's ``wc`` and ``wo`` (chosen for a vehicle whose lags are ``design``, s per
     axis) for one whose lags are ``lag``.  Where the horizontal lag exceeds the design's by more
     than :data:`SCALE_TOLERANCE`, the gains must keep, as a share of the lag, the delay margin
     they had on their own vehicle, up to :data:`MISSION_MARGIN_SHARE`; on any vehicle (``design``
-    None: not known) at least ``floor`` of it (:func:`margin_need`); if they
-    do not, the
+    None: not known) at least ``floor`` of it (:func:`margin_need`); if they do not, the
     horizontal ``wc`` and ``wo`` are scaled down by one factor until they do (the loop designed,
     in slower time: a loop whose gains and plant lag scale together is the same loop, time
     stretched, with the same margin as a share of the lag).  Then the observers get their own
@@ -442,7 +438,7 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observ
         g = _judged(scaled(f, keys), plant, dead)
         return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
 
-    _, need = margin_need(spec, kind, gains, lag, design, floor)
+    need = margin_need(spec, kind, gains, lag, design, floor)
     if margin(1.0, lag, dead_time) >= need:
         return gains, 1.0
     lo, hi = 0.05, 1.0
@@ -977,20 +973,18 @@ class Flight(Preflight, GroundPhases, Failsafes):
             f, design = self.gains_scaled["factor"], self.gains_scaled["design_lag_s"]
             name = getattr(self.m.vehicle, "name", self.m.vehicle)
             kept = self.gains_scaled.get("wo_factor") == 1.0
-            what = (f"horizontal wc x{f:.2f}, to keep its delay margin (wo as given: the "
-                    "observers model the lag)" if kept else
-                    f"horizontal wc and wo x{f:.2f}, to keep their delay margin")
+            which = f"horizontal wc x{f:.2f}" if kept else f"horizontal wc and wo x{f:.2f}"
+            why = " (wo as given: the observers model the lag)" if kept else ""
+            took = gains["input_lag"][0]
             if self.gains_scaled["because"] == "slower":
                 self.say(f"the mission's gains were chosen for a vehicle answering in "
                          f"{design[0]:.3f} s horizontally ({name}); this one takes "
-                         f"{gains['input_lag'][0]:.3f} s: {what}")
+                         f"{took:.3f} s: {which}, to keep {'its' if kept else 'their'} delay "
+                         f"margin{why}")
             else:
-                what = (f"horizontal wc x{f:.2f}" if kept else
-                        f"horizontal wc and wo x{f:.2f}")
                 self.say(f"the mission's gains keep under {MISSION_MARGIN_FLOOR:.0%} of this "
-                         f"vehicle's lag ({gains['input_lag'][0]:.3f} s horizontally) as delay "
-                         f"margin: {what}, to keep that much"
-                         f"{' (wo as given: the observers model the lag)' if kept else ''}")
+                         f"vehicle's lag ({took:.3f} s horizontally) as delay margin: {which}, "
+                         f"to keep that much{why}")
         drag = ""
         if any(float(c) > 0.0 for c in gains.get("drag", ())) and self.ctrl.drag.any():
             drag = f", drag ({', '.join(f'{float(c):.2f}' for c in gains['drag'])}) /s"
@@ -1028,9 +1022,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
         """``gains_scaled`` for the gains flown: the factor by which :func:`scale_to_vehicle`
         slowed the mission's own horizontal wc (``factor``) and wo (``wo_factor``, when the
         mission gives wo: 1 where the observers kept their bandwidth), the lags they were
-        chosen for (``design_lag_s``, None: not known) and why (``because``: "slower", the
-        vehicle is slower than those; "margin", they kept less than
-        :data:`MISSION_MARGIN_FLOOR` of its lag); None: flown as given.  Returns it."""
+        chosen for (``design_lag_s``, None: not known) and which rule slowed them
+        (``because``: "slower", the vehicle is slower than those, and the need was the larger
+        of the share they kept there and :data:`MISSION_MARGIN_FLOOR` of its lag; "margin", it
+        is not, and the floor alone asked it); None: flown as given.  Returns it."""
         design, given = self._design_lag(), self.m.controller.gains.get("wc")
         given_wo = self.m.controller.gains.get("wo")
         self.gains_scaled = None
@@ -1042,8 +1037,6 @@ class Flight(Preflight, GroundPhases, Failsafes):
                 self.gains_scaled = {
                     "design_lag_s": None if design is None else [round(x, 4) for x in design],
                     "factor": round(f, 3),
-                    # "slower": kept the margin they had on the vehicle they were chosen for;
-                    # "margin": MISSION_MARGIN_FLOOR of the lag, which they did not keep
                     "because": "slower" if slower else "margin"}
                 if given_wo is not None and "wo" in gains:
                     self.gains_scaled["wo_factor"] = round(
