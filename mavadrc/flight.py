@@ -439,7 +439,8 @@ def scale_to_vehicle(spec, kind, gains, lag, design, dead_time=None, keep_observ
         return delay_margin(make_controller(spec, hover_thrust=0.5, kind=kind, gains=g))
 
     need = margin_need(spec, kind, gains, lag, design, floor)
-    if margin(1.0, lag, dead_time) >= need:
+    if need <= 0.0 or margin(1.0, lag, dead_time) >= need:
+        # (no need, as on the fast path on the vehicle named: no margin computed)
         return gains, 1.0
     lo, hi = 0.05, 1.0
     while hi - lo > 0.02:
