@@ -1033,8 +1033,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self.kind == self.m.controller.kind and given is not None and "wc" in gains:
             f = float(gains["wc"][0]) / float(given[0])
             if f < 1.0:
-                lag = gains.get("input_lag")
-                slower = isinstance(lag, tuple) and slower_than(lag, design)
+                # (slowed only with input_lag: auto, resolved by then to the lags identified)
+                slower = slower_than(gains["input_lag"], design)
                 self.gains_scaled = {
                     "design_lag_s": None if design is None else [round(x, 4) for x in design],
                     "factor": round(f, 3),
