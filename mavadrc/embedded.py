@@ -127,6 +127,8 @@ class EmbeddedVehicle:
             cmd += ["--height-drift", repr(mission.height_drift_mps)]
         if mission.ground_climb_mps:
             cmd += ["--ground-climb", repr(mission.ground_climb_mps)]
+        if mission.rangefinder:
+            cmd += ["--rangefinder"]
         if mission.clock_rate != 1.0:  # real time only (fly refuses it in lockstep)
             cmd += ["--clock-rate", repr(mission.clock_rate)]
         if math.isnan(mission.heading_deg):

@@ -222,6 +222,7 @@ def run_context(mission, kind, connect, lockstep):
                       sensor_latency_s=mission.sensor_latency_s,
                       height_drift_mps=mission.height_drift_mps,
                       ground_climb_mps=mission.ground_climb_mps,
+                      rangefinder=mission.rangefinder,
                       clock_rate=mission.clock_rate,
                       link=None if mission.link is None else mission.link.as_dict(),
                       heading_deg=("random" if math.isnan(mission.heading_deg)

@@ -55,6 +55,10 @@ def add_arguments(p):
                         "estimate reads a climb this fast, held 4 s then dying away in 4 s "
                         "(PX4 SIH's EKF2 read 0.35-0.4 m/s so; its land detector then refused "
                         "the disarm)")
+    p.add_argument("--rangefinder", action="store_true",
+                   help="a downward range finder: DISTANCE_SENSOR of the true height above the "
+                        "ground (10 Hz on the onboard link, as PX4 SIH's), whatever the height "
+                        "estimate says")
     p.add_argument("--link", default=None, metavar="FILE",
                    help="YAML file with a link model (latency, jitter, loss per direction, "
                         "blackouts), as a mission's sim: {link: ...}")
@@ -257,7 +261,8 @@ def make_servers(args):
                                  sensors=sensors, attitude_controller=args.attitude_controller,
                                  yaw=math.radians(args.heading),
                                  height_drift_mps=args.height_drift,
-                                 ground_climb_mps=args.ground_climb)
+                                 ground_climb_mps=args.ground_climb,
+                                 rangefinder=args.rangefinder)
             servers.append(SitlServer(vehicle, args.autopilot, args.instance + k,
                                       lockstep=args.lockstep,
                                       lockstep_dt=1.0 / args.lockstep_rate, signing_key=key,

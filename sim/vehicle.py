@@ -290,8 +290,11 @@ class SimVehicle:
                  position_rate_hz=100.0, max_thrust=None, hover_thrust=None, airmode=True,
                  attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
                  auto_disarm_s=2.0, thrust_model_factor=0.0, height_drift_mps=0.0,
-                 ground_climb_mps=0.0):
+                 ground_climb_mps=0.0, rangefinder=False):
         self.params = resolve_vehicle(vehicle)
+        # a downward range finder (DISTANCE_SENSOR), measuring the true height above the ground
+        # as PX4 SIH's does (simulator_sih: -z / cos(tilt), no noise)
+        self.rangefinder = bool(rangefinder)
         self.height_drift_mps = float(height_drift_mps)
         if not math.isfinite(self.height_drift_mps):
             raise ValueError(f"height_drift_mps must be finite (got {height_drift_mps!r})")

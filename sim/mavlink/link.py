@@ -42,6 +42,8 @@ ONBOARD_RATES = {
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 5.0,
+    # mavlink_main.cpp, MAVLINK_MODE_ONBOARD (a vehicle without a range finder sends none)
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: 10.0,
 }
 #: a slower ground-station set
 GCS_RATES = {

@@ -195,6 +195,31 @@ def gps_raw_int(s):
                                          int(round(math.hypot(v[0], v[1]) * 100)), cog, 12)
 
 
+#: the bundled range finder's span (cm): PX4 SIH's (SIH_DISTSNSR_MIN 0, SIH_DISTSNSR_MAX 100 m)
+RANGE_MIN_CM, RANGE_MAX_CM = 0, 10000
+
+
+@builds(M.MAVLINK_MSG_ID_DISTANCE_SENSOR)
+def distance_sensor(s):
+    """A downward range finder (``SimVehicle(rangefinder=True)``; None without one): the true
+    height above the flat ground along the body's down axis, -z / cos(tilt), as PX4 SIH's
+    (simulator_sih ``send_dist_snsr``), in whole cm.  Past its span it reads one more than its
+    maximum (out of range, as a receiver must take it)."""
+    if not s.vehicle.rangefinder:
+        return None
+    x = s.vehicle.state
+    q = x[6:10]
+    cos_tilt = 1.0 - 2.0 * (float(q[1]) ** 2 + float(q[2]) ** 2)  # R[2, 2]: body down vs down
+    height = max(0.0, -float(x[2]))
+    if cos_tilt <= 0.1:
+        cm = RANGE_MAX_CM + 1
+    else:
+        cm = min(RANGE_MAX_CM + 1, int(round(100.0 * height / cos_tilt)))
+    return M.MAVLink_distance_sensor_message(
+        s.boot_ms(), RANGE_MIN_CM, RANGE_MAX_CM, cm, M.MAV_DISTANCE_SENSOR_LASER, 0,
+        M.MAV_SENSOR_ROTATION_PITCH_270, 0)
+
+
 @builds(M.MAVLINK_MSG_ID_DEBUG_VECT)
 def debug_vect(s):
     """The simulator's truth, for comparing observer estimates: the acceleration (NED, m/s^2)
