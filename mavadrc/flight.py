@@ -66,6 +66,7 @@ from .samples import SampleGate
 from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
+from .rangefinder import RangeTrack, range_height, rangefinder_text
 from .truth import truth_text
 
 TRUE_DIST = "TRUE_DIST"
@@ -627,6 +628,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._fitter = None  # the fits' own process (real time; mavadrc.fitworker)
         self.summary = None
         self.truth = None  # a simulator's true state, when it sends one (mavadrc.truth)
+        self.rangefinder = RangeTrack()  # a downward range finder, when one reports
         self.context = {}  # what the caller adds to the record (command line, versions, ...)
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
         self.traj = None
@@ -1204,6 +1206,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
                                 np.array([msg.x, msg.y, msg.z]))
         elif self.truth is not None and t == self.truth.source:
             self._on_truth(msg)
+        elif t == "DISTANCE_SENSOR":
+            self._on_range(msg)
         if self._held is not None and not self._awaiting():
             s, self._held = self._held, None
             self._on_sample(s)
@@ -1223,6 +1227,31 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return  # the mission's clock stands still: no time to put it at
         dt = 0.0 if self.lockstep else max(0.0, time.monotonic() - self._last_sample_wall)
         self.truth.add(s.t + dt - self._mission_t0, msg, s.pos + s.vel * dt)
+
+    def _on_range(self, msg):
+        """A range finder's reading (:mod:`mavadrc.rangefinder`): beside the height estimate
+        of its own time (the newest sample carried there on its vertical speed, at most 0.1 s),
+        and, in the mission, the clearance check."""
+        h = range_height(msg, self.cos_tilt)
+        s = self.last
+        if h is None or s is None:
+            return
+        if self.mission_start is None:
+            if not self._lifted:
+                self.rangefinder.at_rest(0.0, h)
+            return
+        if self._waiting:
+            return  # the mission's clock stands still: no time to put it at
+        dt = min(0.1, max(-0.1, msg.time_boot_ms / 1000.0 - s.t))
+        est_h = float(self.origin[2] - (s.pos[2] + s.vel[2] * dt))
+        t = s.t + dt - self._mission_t0
+        self.rangefinder.add(t, est_h, h)
+        if self.phase != "mission":
+            return
+        why = self.rangefinder.clearance(msg.time_boot_ms / 1000.0, est_h, h,
+                                         self.m.safety.min_clearance, self._airborne(t))
+        if why is not None:
+            self._escalate("clearance", why)
 
     def _grounded_in_flight(self, s, t):
         """Why the flight must end, when the autopilot's land detector says ON_GROUND after it
@@ -1677,6 +1706,16 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.say(truth_text(fig, self.m.settle_s))
         return fig
 
+    def _rangefinder_figures(self):
+        """summary.json's ``rangefinder``: the height estimate against a downward range finder,
+        or None (no reading in the mission)."""
+        fig = self.rangefinder.figures(self.m.settle_s)
+        if fig is None:
+            return None
+        self.sources["rangefinder"] = f"{fig['source']}, {fig['aligned']}"
+        self.say(rangefinder_text(fig, self.m.settle_s))
+        return fig
+
     def controller_record(self):
         """The controller flown as a mission's ``controller:`` section (:func:`controller_record`);
         None if the gains could not be resolved."""
@@ -1709,6 +1748,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def _finish(self):
         self.recorder.flush()
         truth = self._truth_figures()
+        rangefinder = self._rangefinder_figures()
         hb = self.link.heartbeat
         disarmed = hb is not None and not self.link.armed
         soft = self.touchdown_speed is None or \
@@ -1820,6 +1860,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         if self.m.settle_s > 0:
             summary["after_settle"] = self.recorder.errors(self.m.settle_s)
         summary["truth"] = truth
+        summary["rangefinder"] = rangefinder
         summary["controller_flown"] = self.controller_record()
         summary.update(self.context)
         summary = finite(summary)  # a figure that does not exist is None, in the file and here

@@ -74,6 +74,9 @@ class Safety:
     #: m from the reference, held TRACKING_LOST_S after lift-off, that ends the mission (the
     #: vehicle is not following: held where it is, then landed); 0: not checked
     max_tracking_error: float = 2.0
+    #: m above the ground by a downward range finder, under which (the height estimate reading
+    #: the vehicle 0.3 m higher, for 0.3 s) the mission ends in a landing; 0: not checked
+    min_clearance: float = 0.3
 
 
 @dataclass
@@ -101,6 +104,7 @@ class Mission:
     wander_corner_hz: float = WANDER_CORNER_HZ
     sensor_latency_s: float = 0.0  # age of the bundled vehicle's reported state (s)
     height_drift_mps: float = 0.0  # the bundled vehicle's height estimate drifts up (m/s)
+    rangefinder: bool = False  # the bundled vehicle has a downward range finder (DISTANCE_SENSOR)
     #: m/s: after a flight, at rest on the ground, the bundled vehicle's estimate reads a climb
     #: (:attr:`sim.vehicle.SimVehicle.ground_climb_mps`)
     ground_climb_mps: float = 0.0
@@ -516,6 +520,7 @@ def _read_safety(sec, s):
                                        le=5.0)
     s.max_tracking_error = sec.number("max_tracking_error", s.max_tracking_error, ge=0.0,
                                       le=1000.0)
+    s.min_clearance = sec.number("min_clearance", s.min_clearance, ge=0.0, le=100.0)
     sec.finish()
     return s
 
@@ -688,6 +693,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
         m.sensor_latency_s = s.number("sensor_latency_s", 0.0, ge=0.0, le=1.0)
         m.height_drift_mps = s.number("height_drift_mps", 0.0, ge=-0.5, le=0.5)
         m.ground_climb_mps = s.number("ground_climb_mps", 0.0, ge=0.0, le=2.0)
+        m.rangefinder = s.boolean("rangefinder", False)
         m.clock_rate = s.number("clock_rate", 1.0, ge=CLOCK_RATES[0], le=CLOCK_RATES[1])
         if s.has("link"):
             from sim.link_model import link_from_section

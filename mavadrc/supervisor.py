@@ -17,6 +17,10 @@ breach               land              geofence, altitude or speed limit
 ground               land              on the ground mid-mission (the autopilot says so,
                                        or the ground carries the vehicle's weight): the
                                        height estimate is off (or a collision)
+clearance            land              a downward range finder reads the vehicle under
+                                       ``min_clearance`` where its height estimate
+                                       reads it 0.3 m higher: the estimate is off and
+                                       the ground is near
 tracking             hold, then land   the vehicle held ``max_tracking_error`` from the
                                        reference: it is not following (caught, pinned,
                                        a wind past its authority): stop chasing it
@@ -47,6 +51,7 @@ RULES = {
     "stale": LAND,
     "breach": LAND,
     "ground": LAND,
+    "clearance": LAND,
     "tracking": HOLD_THEN_LAND,
     "timeout": LAND,
     "exception": LAND,
