@@ -61,12 +61,12 @@ from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text, prediction_text
+from .rangefinder import RangeTrack, range_height, rangefinder_text
 from .record import REGULARITY_PERIODS, Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
 from .supervisor import GIVE_UP, LAND, Supervisor
 from .trajectories import Reference
-from .rangefinder import RangeTrack, range_height, rangefinder_text
 from .truth import truth_text
 
 TRUE_DIST = "TRUE_DIST"
@@ -1245,7 +1245,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         dt = min(0.1, max(-0.1, msg.time_boot_ms / 1000.0 - s.t))
         est_h = float(self.origin[2] - (s.pos[2] + s.vel[2] * dt))
         t = s.t + dt - self._mission_t0
-        self.rangefinder.add(t, est_h, h)
+        self.rangefinder.add(t, est_h, h, in_air=self.takeover_in_air)
         if self.phase != "mission":
             return
         why = self.rangefinder.clearance(msg.time_boot_ms / 1000.0, est_h, h,

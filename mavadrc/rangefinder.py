@@ -68,15 +68,22 @@ class RangeTrack:
         self.aligned = None
         self.t, self.estimate, self.range = [], [], []
         self._low_since = None
+        self._in_air = False  # taken over in the air: aligning on the first readings
 
     def at_rest(self, est_h, rng_h):
         """A reading before the mission, the vehicle at rest on the ground."""
         self.received += 1
         self._rest.append(est_h - rng_h)
 
-    def start(self):
-        """The mission starts: the alignment is fixed from the readings at rest."""
-        if self.offset is not None:
+    def start(self, in_air=False):
+        """The mission starts: the alignment is fixed from the readings at rest; a flight taken
+        over in the air (``in_air``) aligns on its first :data:`REST_SAMPLES` readings instead,
+        and checks no clearance before."""
+        if self.offset is not None or self._in_air:
+            return
+        if in_air:
+            self._in_air = True
+            self._rest.clear()
             return
         if self._rest:
             self.offset = float(np.mean(self._rest))
@@ -88,10 +95,20 @@ class RangeTrack:
                             "minimum distance, or no sensor yet); the takeoff spot's ground "
                             "taken as the range finder's zero")
 
-    def add(self, t, est_h, rng_h):
-        """A reading at mission time ``t``; returns the estimate's height above it (m)."""
+    def add(self, t, est_h, rng_h, in_air=False):
+        """A reading at mission time ``t``; returns the estimate's height above it (m), or None
+        while a flight taken over in the air (``in_air``) is still aligning."""
         if self.offset is None:
-            self.start()
+            self.start(in_air)
+            if self._in_air:
+                self.received += 1
+                self._rest.append(est_h - rng_h)
+                if len(self._rest) < REST_SAMPLES:
+                    return None
+                self.offset = float(np.mean(self._rest))
+                self.aligned = (f"in the air, on the first {len(self._rest)} readings (the "
+                                "flight taken over there): the estimate read "
+                                f"{self.offset:+.3f} m from the range finder there")
         self.received += 1
         self.t.append(t)
         self.estimate.append(est_h - self.offset)
@@ -101,8 +118,11 @@ class RangeTrack:
     def clearance(self, t_vehicle, est_h, rng_h, min_clearance, airborne):
         """Why the mission must end (None otherwise): airborne, the range finder under
         ``min_clearance`` (m) while the estimate (aligned) reads :data:`CLEARANCE_GAP_M` more,
-        for :data:`CLEARANCE_HOLD_S` of the vehicle's clock ``t_vehicle``."""
-        est = est_h - (self.offset or 0.0)
+        for :data:`CLEARANCE_HOLD_S` of the vehicle's clock ``t_vehicle``; nothing before the
+        two are aligned."""
+        if self.offset is None:
+            return None
+        est = est_h - self.offset
         low = bool(min_clearance) and airborne and rng_h < min_clearance \
             and est - rng_h > CLEARANCE_GAP_M
         if not low:

@@ -10,8 +10,8 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from mavadrc.fly import fly
 from mavadrc.mission import load_mission
-from mavadrc.rangefinder import (CLEARANCE_GAP_M, CLEARANCE_HOLD_S, DOWN, RangeTrack,
-                                 range_height, rangefinder_text)
+from mavadrc.rangefinder import (CLEARANCE_GAP_M, CLEARANCE_HOLD_S, DOWN, REST_SAMPLES,
+                                 RangeTrack, range_height, rangefinder_text)
 from mavadrc.record import read_table
 from sim.yamlio import ConfigError
 
@@ -71,6 +71,20 @@ def test_the_clearance_check_holds_its_time_and_needs_both_the_ground_near_and_t
     assert fresh.clearance(5.0, 1.0, 0.2, 0.3, True) is None
     assert fresh.clearance(5.2, 0.3, 0.2, 0.3, True) is None
     assert fresh.clearance(5.4, 1.0, 0.2, 0.3, True) is None
+
+
+def test_a_flight_taken_over_in_the_air_aligns_on_its_first_readings():
+    """Taken over at 2 m, the estimate's origin is the takeover point: it reads 0 where the
+    range finder reads 2.  The first readings align the two; until then nothing is recorded
+    and no clearance is checked."""
+    track = RangeTrack()
+    for k in range(REST_SAMPLES - 1):
+        assert track.add(0.1 * k, 0.0, 2.0, in_air=True) is None
+        assert track.clearance(0.1 * k, 0.0, 0.1, 0.3, True) is None
+    assert track.add(1.0, 0.0, 2.0, in_air=True) == pytest.approx(0.0)
+    assert track.offset == pytest.approx(-2.0) and track.aligned.startswith("in the air")
+    assert track.add(1.1, -0.5, 1.4, in_air=True) == pytest.approx(0.1)
+    assert track.figures()["samples"] == 2
 
 
 def test_min_clearance_is_checked_and_named(tmp_path):
