@@ -76,7 +76,7 @@ class Safety:
     max_tracking_error: float = 2.0
     #: m above the ground by a downward range finder, under which (the height estimate reading
     #: the vehicle 0.3 m higher, for 0.3 s) the mission ends in a landing; 0: not checked
-    min_clearance: float = 0.3
+    min_clearance: float = 0.5
 
 
 @dataclass

@@ -12,6 +12,7 @@ import time
 from .fitworker import FitWorker
 from .identify import load_fitting
 from .link import TIMEOUT, FlightError, LinkError, M, result_name
+from .rangefinder import RANGE_HZ
 from .sequence import sequence_for
 from .truth import TRUTH_HZ, TruthTrack
 
@@ -178,11 +179,17 @@ class Preflight:
             wanted.append((M.MAVLINK_MSG_ID_DEBUG_VECT, rate))  # the simulator's true disturbance
         for mid in self.seq.unused_streams:
             wanted.append((mid, 0))  # not used: spare the link
+        # a downward range finder, if the vehicle has one (mavadrc.rangefinder): PX4 streams it
+        # on its onboard link by itself, ArduPilot when asked; a vehicle without one refuses
+        # it or sends nothing, and nothing changes
+        optional = {"DISTANCE_SENSOR"}
+        wanted.append((M.MAVLINK_MSG_ID_DISTANCE_SENSOR, min(rate, RANGE_HZ)))
         truth = self.seq.truth_message
         if truth is not None:
             # a simulator's true state, to measure the flight against (mavadrc.truth); a real
             # vehicle refuses it or sends none, and nothing changes
             wanted.append((getattr(M, "MAVLINK_MSG_ID_" + truth), min(rate, TRUTH_HZ)))
+            optional.add(truth)
             self.truth = TruthTrack(truth, table=self.rec.truth_table)
         self.streams = {}
         tries = STREAM_TRIES
@@ -193,7 +200,7 @@ class Preflight:
             tries = STREAM_TRIES_UNANSWERED if result == TIMEOUT else STREAM_TRIES
             name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
             self.streams[name] = result_name(result)
-            if result != M.MAV_RESULT_ACCEPTED and hz > 0 and name != truth:
+            if result != M.MAV_RESULT_ACCEPTED and hz > 0 and name not in optional:
                 self.say(f"the vehicle answered {result_name(result)} to {name} at {hz:g} Hz")
 
     def _ph_measure(self, s):

@@ -32,6 +32,8 @@ import numpy as np
 
 #: MAV_SENSOR_ROTATION_PITCH_270: a range finder looking down
 DOWN = 25
+#: the rate a flight asks for DISTANCE_SENSOR at (Hz; PX4's own on its onboard link)
+RANGE_HZ = 10.0
 #: readings at rest the alignment averages (1 s at PX4's 10 Hz)
 REST_SAMPLES = 10
 #: the estimate must read the vehicle at least this much higher than the range finder (m) ...
