@@ -1619,6 +1619,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
         warn = self.supervisor.link_warning(self.gate)
         if warn is not None:
             self._warn_once("link", warn, latest=True)
+        warn = self.link.sources_text()
+        if warn is not None:  # heard in flight: only the vehicle flown is answered and read
+            self._warn_once("sources", f"{warn}; the flight goes on with the one it flies",
+                            latest=True)
 
     def _left_control(self):
         """The pilot or a failsafe took the vehicle: stop commanding, watch it land.  Judged only
@@ -1774,6 +1778,8 @@ class Flight(Preflight, GroundPhases, Failsafes):
             "bad_frames": self.link.bad_frames,
             "bad_signatures": self.link.bad_signatures,
             "other_system_messages": self.link.other_system,
+            # messages of the flown system from another address (a second vehicle with its id)
+            "other_source_messages": sum(self.link.other_sources.values()),
         })
         summary = {
             "controller": self.kind,

@@ -269,6 +269,10 @@ class Link:
         self.bad_frames = 0
         self.bad_signatures = 0
         self.other_system = 0
+        # udpin: the address the chosen autopilot speaks from, and any other address that
+        # speaks as the same system (another vehicle with its id: _one_source)
+        self.source = None
+        self.other_sources = {}  # address -> messages dropped
         self.frames_received = 0
         self.frames_lost = 0
         self._last_seq = None
@@ -351,8 +355,8 @@ class Link:
             if self.target_system != 0:
                 self.other_system += 1
             return None
-        if self._answer_sender:
-            self.conn.peer = self.conn.last_from  # answer the chosen autopilot only
+        if self._answer_sender and not self._one_source(getattr(msg, "_from", None)):
+            return None
         if msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1:
             self._count_seq(msg.get_seq())
         if t == "HEARTBEAT":
@@ -389,6 +393,33 @@ class Link:
             self._on_timesync(msg)
         self.messages[t] = msg
         return msg
+
+    def _one_source(self, frm):
+        """Over udpin, whether a message of the chosen system comes from the address it was
+        first heard from (and answered there).  Another address speaking as the same system is
+        a second vehicle with its id (two SITLs on one port, two radios): MAVLink cannot tell
+        them apart, and answering whoever spoke last sent the setpoints to both in turn and
+        flew the loop on both vehicles' positions mixed.  Its messages are dropped and counted
+        (``other_sources``); a flight refuses to arm while one is heard."""
+        if frm is None or frm == self.source:
+            return True
+        if self.source is None:
+            self.source = frm
+            self.conn.peer = frm  # answer the chosen autopilot only
+            return True
+        self.other_sources[frm] = self.other_sources.get(frm, 0) + 1
+        return False
+
+    def sources_text(self):
+        """What ``other_sources`` means, for a refusal or a warning (None when empty)."""
+        if not self.other_sources:
+            return None
+        others = ", ".join(f"{a}:{p}" for a, p in self.other_sources)
+        return (f"two vehicles speak as system {self.target_system} on {self.url}: "
+                f"{self.source[0]}:{self.source[1]} (flown) and {others} "
+                f"({sum(self.other_sources.values())} messages of the other dropped); MAVLink "
+                "cannot tell them apart, so setpoints could reach either; stop one, or give "
+                "them different system ids")
 
     def _count_seq(self, seq):
         """Frames lost on the way: gaps in the autopilot's MAVLink sequence numbers
@@ -440,6 +471,8 @@ class Link:
             for m in msgs:
                 if m.get_type() != "BAD_DATA":
                     self.tlog.write(m.get_msgbuf(), t_us)
+        for m in msgs:
+            m._from = conn.last_from  # whose datagram (Link._one_source)
         self._queue.extend(msgs[1:])
         return msgs[0]
 

@@ -214,6 +214,9 @@ class Preflight:
         if self.gate.span < MEASURE_S or self.gate.received < 5:
             return
         self._judge_rate()
+        why = self.link.sources_text()
+        if why is not None:
+            raise FlightError(f"{why}: not flying")
         self._cmd = self.seq.request_control(self.link)
         self._cmd_tries = 1
         self._enter("mode", s)

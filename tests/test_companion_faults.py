@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 from short_flights import FAST_PX4, fly_through, lossy_vehicle, short_mission, stop
-from sitl_helpers import Client, start_vehicle, wait_until
+from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
 
 from mavadrc.flight import Flight
 from mavadrc.fly import fly
@@ -435,3 +435,58 @@ def test_summary_is_strict_json_even_when_nothing_flew(tmp_path):
 
     assert json.loads(text, parse_constant=refuse) == {"max_error_m": None, "ok": 2.0,
                                                        "rms": [1.0, None]}
+
+
+# --- two vehicles with one system id ----------------------------------------------------------
+
+
+def test_two_vehicles_with_one_system_id_on_one_port_are_refused(tmp_path):
+    """Two bundled vehicles, both system 1, sending to the companion's one port (two SITLs
+    left running, as happened beside PX4 SIH): MAVLink cannot tell them apart, and the flight
+    used to fly the loop on both vehicles' positions in turn.  Now only the first address heard
+    is read and answered, the other's messages are dropped and counted, and the flight refuses
+    to arm, naming both: neither vehicle is armed or switched to OFFBOARD."""
+    port = free_udp_port()
+    a, _ = start_vehicle(port=port)
+    b, _ = start_vehicle(port=port, seed=1)
+    ports = {srv.local_ports["offboard"] for srv in (a, b)}
+    out = io.StringIO()
+    try:
+        with pytest.raises(FlightError, match="two vehicles speak as system 1") as e:
+            fly(short_mission(tmp_path, hover=1), connect=f"udpin:127.0.0.1:{port}",
+                out=tmp_path / "runs", figures=False, progress=False, stream=out)
+        assert not a.vehicle.armed and not b.vehicle.armed
+        assert a.autopilot.mode.name != "OFFBOARD" and b.autopilot.mode.name != "OFFBOARD"
+    finally:
+        a.stop()
+        b.stop()
+    text = str(e.value)
+    assert all(f"127.0.0.1:{p}" in text for p in ports), text
+    assert "not flying" in text
+
+
+def test_one_vehicle_is_followed_from_the_address_it_was_heard_from(tmp_path):
+    """The link's rule by itself: the first address speaking as the chosen system is read and
+    answered; another address with the same id is dropped, counted and named."""
+    port = free_udp_port()
+    a, _ = start_vehicle(port=port)
+    link = Link(f"udpin:127.0.0.1:{port}")
+    try:
+        link.wait_heartbeat(10.0)
+        first = link.source
+        assert first == ("127.0.0.1", a.local_ports["offboard"])
+        assert link.sources_text() is None
+        b, _ = start_vehicle(port=port, seed=1)
+        second = ("127.0.0.1", b.local_ports["offboard"])
+        try:
+            end = time.monotonic() + 5.0
+            while not link.other_sources and time.monotonic() < end:
+                link.recv(0.1)
+        finally:
+            b.stop()
+        assert link.source == first and link.conn.peer == first
+        assert set(link.other_sources) == {second}
+        assert "two vehicles speak as system 1" in link.sources_text()
+    finally:
+        link.close()
+        a.stop()
