@@ -1619,10 +1619,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
         warn = self.supervisor.link_warning(self.gate)
         if warn is not None:
             self._warn_once("link", warn, latest=True)
-        warn = self.link.sources_text()
-        if warn is not None:  # heard in flight: only the vehicle flown is answered and read
-            self._warn_once("sources", f"{warn}; the flight goes on with the one it flies",
-                            latest=True)
+        if self.link.other_sources and "sources" not in self._warned:
+            # heard in flight: only the vehicle flown is answered and read (said once; the
+            # summary's link counts the other's messages)
+            self._warn_once("sources", f"{self.link.sources_text()}; the flight goes on with "
+                            "the one it flies", every=math.inf)
 
     def _left_control(self):
         """The pilot or a failsafe took the vehicle: stop commanding, watch it land.  Judged only

@@ -64,7 +64,6 @@ class RangeTrack:
     spot), once aligned."""
 
     def __init__(self):
-        self.received = 0  # downward readings in its span
         self._rest = deque(maxlen=REST_SAMPLES)  # estimate - range finder, at rest
         self.offset = None
         self.aligned = None
@@ -74,7 +73,6 @@ class RangeTrack:
 
     def at_rest(self, est_h, rng_h):
         """A reading before the mission, the vehicle at rest on the ground."""
-        self.received += 1
         self._rest.append(est_h - rng_h)
 
     def start(self, in_air=False):
@@ -103,7 +101,6 @@ class RangeTrack:
         if self.offset is None:
             self.start(in_air)
             if self._in_air:
-                self.received += 1
                 self._rest.append(est_h - rng_h)
                 if len(self._rest) < REST_SAMPLES:
                     return None
@@ -111,7 +108,6 @@ class RangeTrack:
                 self.aligned = (f"in the air, on the first {len(self._rest)} readings (the "
                                 "flight taken over there): the estimate read "
                                 f"{self.offset:+.3f} m from the range finder there")
-        self.received += 1
         self.t.append(t)
         self.estimate.append(est_h - self.offset)
         self.range.append(rng_h)

@@ -490,3 +490,36 @@ def test_one_vehicle_is_followed_from_the_address_it_was_heard_from(tmp_path):
     finally:
         link.close()
         a.stop()
+
+
+def test_a_second_vehicle_heard_in_flight_is_dropped_and_the_flight_goes_on(tmp_path):
+    """A second vehicle with the flown one's system id starts sending to the port mid-flight:
+    its messages are dropped (its position never reaches the loop), the flight warns once and
+    flies on to its landing within its usual error; the other vehicle is never armed."""
+    port = free_udp_port()
+    a, _ = start_vehicle(port=port, params=dict(FAST_PX4))
+    started = {}
+
+    def second():
+        if wait_until(lambda: a.vehicle.armed and -a.vehicle.state[2] > 0.5, 30.0):
+            # parked 3 m away: its positions, read as the flown vehicle's, would be a jump
+            started["b"] = start_vehicle(port=port, seed=1, position=(3.0, 0.0, 0.0))[0]
+
+    t = threading.Thread(target=second)
+    t.start()
+    out = io.StringIO()
+    try:
+        summary, _ = fly(short_mission(tmp_path, hover=3), connect=f"udpin:127.0.0.1:{port}",
+                         out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                         timeout=90.0)
+    finally:
+        t.join(40)
+        a.stop()
+        if "b" in started:
+            b_armed = started["b"].vehicle.armed
+            started["b"].stop()
+    assert "b" in started and not b_armed
+    assert summary["landed"] and summary["aborted"] == [], summary["aborted"]
+    assert summary["link"]["other_source_messages"] > 10
+    assert sum("two vehicles speak as system 1" in w for w in summary["warnings"]) == 1
+    assert summary["max_error_m"] < 0.1  # the other vehicle's position never flown
