@@ -1245,10 +1245,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
         dt = min(0.1, max(-0.1, msg.time_boot_ms / 1000.0 - s.t))
         est_h = float(self.origin[2] - (s.pos[2] + s.vel[2] * dt))
         t = s.t + dt - self._mission_t0
-        self.rangefinder.add(t, est_h, h, in_air=self.takeover_in_air)
+        gap = self.rangefinder.add(t, est_h, h, in_air=self.takeover_in_air)
         if self.phase != "mission":
             return
-        why = self.rangefinder.clearance(msg.time_boot_ms / 1000.0, est_h, h,
+        why = self.rangefinder.clearance(msg.time_boot_ms / 1000.0, gap, h,
                                          self.m.safety.min_clearance, self._airborne(t))
         if why is not None:
             self._escalate("clearance", why)

@@ -69,60 +69,48 @@ class RangeTrack:
         self.aligned = None
         self.t, self.estimate, self.range = [], [], []
         self._low_since = None
-        self._in_air = False  # taken over in the air: aligning on the first readings
 
     def at_rest(self, est_h, rng_h):
         """A reading before the mission, the vehicle at rest on the ground."""
         self._rest.append(est_h - rng_h)
 
     def start(self, in_air=False):
-        """The mission starts: the alignment is fixed from the readings at rest; a flight taken
-        over in the air (``in_air``) aligns on its first :data:`REST_SAMPLES` readings instead,
-        and checks no clearance before."""
-        if self.offset is not None or self._in_air:
-            return
-        if in_air:
-            self._in_air = True
-            self._rest.clear()
-            return
-        if self._rest:
-            self.offset = float(np.mean(self._rest))
-            self.aligned = (f"at rest before the mission ({len(self._rest)} readings): the "
-                            f"estimate read {self.offset:+.3f} m from the range finder there")
-        else:
+        """The alignment fixed from the readings kept: at rest before the mission, or, for a
+        flight taken over in the air (``in_air``), its first ones in the mission."""
+        if not self._rest:
             self.offset = 0.0
             self.aligned = ("not aligned: no reading at rest (the ground under the sensor's "
                             "minimum distance, or no sensor yet); the takeoff spot's ground "
                             "taken as the range finder's zero")
+            return
+        self.offset = float(np.mean(self._rest))
+        where = ("in the air, on the first {} readings (the flight taken over there)" if in_air
+                 else "at rest before the mission ({} readings)").format(len(self._rest))
+        self.aligned = (f"{where}: the estimate read {self.offset:+.3f} m from the range finder "
+                        "there")
 
     def add(self, t, est_h, rng_h, in_air=False):
         """A reading at mission time ``t``; returns the estimate's height above it (m), or None
-        while a flight taken over in the air (``in_air``) is still aligning."""
+        while a flight taken over in the air (``in_air``, no reading at rest) is still aligning
+        on its first :data:`REST_SAMPLES` readings."""
         if self.offset is None:
-            self.start(in_air)
-            if self._in_air:
+            if in_air:
                 self._rest.append(est_h - rng_h)
                 if len(self._rest) < REST_SAMPLES:
                     return None
-                self.offset = float(np.mean(self._rest))
-                self.aligned = (f"in the air, on the first {len(self._rest)} readings (the "
-                                "flight taken over there): the estimate read "
-                                f"{self.offset:+.3f} m from the range finder there")
+            self.start(in_air)
         self.t.append(t)
         self.estimate.append(est_h - self.offset)
         self.range.append(rng_h)
         return est_h - self.offset - rng_h
 
-    def clearance(self, t_vehicle, est_h, rng_h, min_clearance, airborne):
+    def clearance(self, t_vehicle, gap, rng_h, min_clearance, airborne):
         """Why the mission must end (None otherwise): airborne, the range finder under
-        ``min_clearance`` (m) while the estimate (aligned) reads :data:`CLEARANCE_GAP_M` more,
-        for :data:`CLEARANCE_HOLD_S` of the vehicle's clock ``t_vehicle``; nothing before the
-        two are aligned."""
-        if self.offset is None:
-            return None
-        est = est_h - self.offset
-        low = bool(min_clearance) and airborne and rng_h < min_clearance \
-            and est - rng_h > CLEARANCE_GAP_M
+        ``min_clearance`` (m) while the estimate reads :data:`CLEARANCE_GAP_M` more (``gap``,
+        what :meth:`add` returned; None while not aligned: nothing checked), for
+        :data:`CLEARANCE_HOLD_S` of the vehicle's clock ``t_vehicle``."""
+        low = gap is not None and bool(min_clearance) and airborne and rng_h < min_clearance \
+            and gap > CLEARANCE_GAP_M
         if not low:
             self._low_since = None
             return None
@@ -131,7 +119,8 @@ class RangeTrack:
         if t_vehicle - self._low_since < CLEARANCE_HOLD_S:
             return None
         return (f"the range finder reads the vehicle {rng_h:.2f} m above the ground where its "
-                f"height estimate reads {est:.2f} m (safety.min_clearance {min_clearance:g} m): "
+                f"height estimate reads {rng_h + gap:.2f} m (safety.min_clearance "
+                f"{min_clearance:g} m): "
                 "the estimate is off and the ground is near")
 
     def figures(self, settle_s=0.0):

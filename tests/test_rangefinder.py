@@ -54,23 +54,24 @@ def test_the_clearance_check_holds_its_time_and_needs_both_the_ground_near_and_t
         track.at_rest(0.0, 0.05)  # the sensor mounted 5 cm up
     track.start()
     assert track.offset == pytest.approx(-0.05)
-    # estimate (aligned) 0.95 + 0.05 = 1.0 m, the range finder 0.25: near and far apart
-    assert track.clearance(10.0, 0.95, 0.25, 0.3, True) is None  # not yet held
-    assert track.clearance(10.0 + CLEARANCE_HOLD_S - 0.01, 0.95, 0.25, 0.3, True) is None
-    why = track.clearance(10.0 + CLEARANCE_HOLD_S, 0.95, 0.25, 0.3, True)
+    # estimate (aligned) 0.95 + 0.05 = 1.0 m, the range finder 0.25 (gap 0.75): near and far apart
+    assert track.clearance(10.0, 0.75, 0.25, 0.3, True) is None  # not yet held
+    assert track.clearance(10.0 + CLEARANCE_HOLD_S - 0.01, 0.75, 0.25, 0.3, True) is None
+    why = track.clearance(10.0 + CLEARANCE_HOLD_S, 0.75, 0.25, 0.3, True)
     assert "0.25 m above the ground" in why and "reads 1.00 m" in why
     fresh = RangeTrack()
     fresh.start()
     # low but agreeing (a landing, a low pass): nothing; far apart but high: nothing
     for t in np.arange(0, 2, 0.1):
-        assert fresh.clearance(t, 0.25, 0.25 - CLEARANCE_GAP_M + 0.05, 0.3, True) is None
-        assert fresh.clearance(t, 1.5, 0.5, 0.3, True) is None
-        assert fresh.clearance(t, 1.0, 0.2, 0.0, True) is None  # 0: not checked
-        assert fresh.clearance(t, 1.0, 0.2, 0.3, False) is None  # not airborne
+        assert fresh.clearance(t, CLEARANCE_GAP_M - 0.05, 0.25 - CLEARANCE_GAP_M + 0.05, 0.3,
+                               True) is None
+        assert fresh.clearance(t, 1.0, 0.5, 0.3, True) is None
+        assert fresh.clearance(t, 0.8, 0.2, 0.0, True) is None  # 0: not checked
+        assert fresh.clearance(t, 0.8, 0.2, 0.3, False) is None  # not airborne
     # a gap that closes resets the hold
-    assert fresh.clearance(5.0, 1.0, 0.2, 0.3, True) is None
-    assert fresh.clearance(5.2, 0.3, 0.2, 0.3, True) is None
-    assert fresh.clearance(5.4, 1.0, 0.2, 0.3, True) is None
+    assert fresh.clearance(5.0, 0.8, 0.2, 0.3, True) is None
+    assert fresh.clearance(5.2, 0.1, 0.2, 0.3, True) is None
+    assert fresh.clearance(5.4, 0.8, 0.2, 0.3, True) is None
 
 
 def test_a_flight_taken_over_in_the_air_aligns_on_its_first_readings():
@@ -79,8 +80,9 @@ def test_a_flight_taken_over_in_the_air_aligns_on_its_first_readings():
     and no clearance is checked."""
     track = RangeTrack()
     for k in range(REST_SAMPLES - 1):
-        assert track.add(0.1 * k, 0.0, 2.0, in_air=True) is None
-        assert track.clearance(0.1 * k, 0.0, 0.1, 0.3, True) is None
+        gap = track.add(0.1 * k, 0.0, 2.0, in_air=True)
+        assert gap is None
+        assert track.clearance(0.1 * k, gap, 0.1, 0.3, True) is None
     assert track.add(1.0, 0.0, 2.0, in_air=True) == pytest.approx(0.0)
     assert track.offset == pytest.approx(-2.0) and track.aligned.startswith("in the air")
     assert track.add(1.1, -0.5, 1.4, in_air=True) == pytest.approx(0.1)
