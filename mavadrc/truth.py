@@ -177,6 +177,8 @@ class TruthTrack:
             "band_hz": list(WANDER_BAND_HZ), "from_s": float(settle_s),
             "rms_xyz_m": band_rms(ts[after], miss[after]),
             "error_rms_xyz_m": band_rms(ts[after], est[after] - r[after])}
+        out["estimate_error"]["step"] = estimate_steps(ts[after], miss[after],
+                                                       est[after] - r[after], settle_s)
         return out
 
 
@@ -220,6 +222,61 @@ def band_rms(ts, x, band=WANDER_BAND_HZ, grid_hz=WANDER_GRID_HZ, min_s=WANDER_MI
     return [float(v) for v in np.sqrt(power / count)]
 
 
+#: the time (s) within which the estimate's own moves against the truth are counted as one step:
+#: about what a loop on a vehicle answering in 0.2-0.3 s needs to follow a move of its estimate
+#: (PX4 SIH's EKF2 once moved 0.085 m against its truth in 0.36 s, and the error read by it rose
+#: 0.11 m while the vehicle had moved 0.03)
+STEP_WINDOW_S = 0.5
+#: the miss is first averaged over this many seconds, centred: the true samples are timed by
+#: their arrival, which at 5 m/s puts 20-30 mm of jitter between two of them (ArduCopter SITL)
+STEP_SMOOTH_S = 0.2
+
+
+def estimate_steps(ts, miss, err, from_s=0.0, window=STEP_WINDOW_S, gap_s=WANDER_GAP_S,
+                   smooth_s=STEP_SMOOTH_S):
+    """How far the estimate moved against the truth within ``window`` s: its miss ``miss``
+    ((N, 3) estimate minus truth, at times ``ts``; averaged over ``smooth_s``, centred) against
+    the miss ``window`` s before, on each stretch without a gap over ``gap_s`` (3-D, m).  A loop
+    follows its estimate, so a move this quick is read as the vehicle's error before any loop
+    could answer it: a floor under the error the estimate reports.  Also, at the largest error
+    read by the estimate ``err`` ((N, 3) estimate minus reference), how much of it the estimate
+    had just moved.  None where no stretch is longer than ``window``."""
+    ts = np.asarray(ts, dtype=float)
+    miss = np.asarray(miss, dtype=float).reshape(-1, 3)
+    err = np.asarray(err, dtype=float).reshape(-1, 3)
+    moved = np.full(ts.size, np.nan)
+    for seg in np.split(np.arange(ts.size), np.flatnonzero(np.diff(ts) > gap_s) + 1):
+        k = int(round(smooth_s / float(np.median(np.diff(ts[seg]))))) if seg.size > 1 else 0
+        if k >= 2:  # centred running mean; the half-windows at the ends are dropped
+            seg = seg[k // 2:seg.size - (k - 1 - k // 2)]
+            kern = np.ones(k) / k
+            m = np.column_stack([np.convolve(miss[seg[0] - k // 2:seg[-1] + k - k // 2, i],
+                                             kern, mode="valid") for i in range(3)])
+        else:
+            m = miss[seg]
+        if seg.size < 2:
+            continue
+        st = ts[seg]
+        late = st - window >= st[0]
+        if not late.any():
+            continue
+        before = np.column_stack([np.interp(st[late] - window, st, m[:, i])
+                                  for i in range(3)])
+        moved[seg[late]] = np.linalg.norm(m[late] - before, axis=1)
+    out = {"window_s": float(window), "from_s": float(from_s), "max_m": None, "at_s": None,
+           "at_worst_error": None}
+    if not np.isfinite(moved).any():
+        return out
+    k = int(np.nanargmax(moved))
+    out["max_m"], out["at_s"] = float(moved[k]), float(ts[k])
+    norm = np.linalg.norm(err, axis=1)
+    w = int(np.argmax(norm))
+    if np.isfinite(moved[w]):
+        out["at_worst_error"] = {"t_s": float(ts[w]), "error_m": float(norm[w]),
+                                 "moved_m": float(moved[w])}
+    return out
+
+
 #: truth.csv's columns: mission time, the true position in the estimate's frame, true velocity
 TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd"]
 
@@ -242,4 +299,12 @@ def truth_text(fig, settle_s=0.0):
         where = " after settling" if settle_s > 0 else ""
         text += (f"; between {lo:g} and {hi:g} Hz{where} it wandered {mm(w['rms_xyz_m'])} mm rms (north / east), which the loop "
                  f"reads as motion, and the error by it was {mm(w['error_rms_xyz_m'])} mm there")
+    st = est.get("step")
+    if st and st["max_m"] is not None:
+        text += (f"; within {st['window_s']:g} s it moved up to {st['max_m']:.3f} m against the "
+                 f"truth (at {st['at_s']:.1f} s), a move no loop follows in time")
+        worst = st["at_worst_error"]
+        if worst is not None:
+            text += (f", and at the largest error read by it ({worst['error_m']:.3f} m, "
+                     f"{worst['t_s']:.1f} s) it had just moved {worst['moved_m']:.3f} m")
     return text
