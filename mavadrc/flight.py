@@ -48,8 +48,8 @@ from .control import PositionController
 from .control.geometry import GRAVITY, thrust_for_tilt
 from .control.rotations import level_quat
 from .failsafe import Failsafes
-from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S, TAKEOFF_RAMP_PER_S,
-                     TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, GroundPhases,
+from .ground import (CARRIED_SHARE, CARRIED_THRUST_MARGIN, LIFTOFF_HEIGHT, SETTLED_S,
+                     TAKEOFF_RAMP_PER_S, TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, GroundPhases,
                      landing_tilt, lifted_off)
 from .learn import TAU_S as DRAG_LEARN_S, DragLearner
 from .link import FlightError, LinkError, M
@@ -61,7 +61,7 @@ from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text, prediction_text
-from .rangefinder import RangeTrack, range_height, rangefinder_text
+from .rangefinder import RANGE_FRESH_S, RangeTrack, range_height, rangefinder_text
 from .record import REGULARITY_PERIODS, Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
@@ -693,6 +693,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._waiting = False  # this sample's reference waits for the lift-off
         self._waited_capped = 0.0  # s of that waiting with the thrust at its bound
         self.liftoff_hover = None  # the hover thrust taken at lift-off, after a wait
+        self.liftoff_s = None  # mission time of the lift-off seen
+        self._range_now = None  # (vehicle s, m) the newest range finder reading
+        self._range_disputed = False  # the range finder said the estimate's lift-off was not
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused_wall = None  # wall time of the first refused disarm
         #: how the vehicle came to be disarmed after touchdown: "command" (ours), "land mode"
@@ -1236,6 +1239,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         s = self.last
         if h is None or s is None:
             return
+        self._range_now = (msg.time_boot_ms / 1000.0, h)
         if self.mission_start is None:
             if not self._lifted:
                 self.rangefinder.at_rest(0.0, h)
@@ -1512,8 +1516,9 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._identify_step(s, t, rc.vel)
         self._descent_history(s, final)
         if not self._lifted:
-            if lifted_off(self.origin[2] - s.pos[2], s.vel[2]):
+            if lifted_off(self.origin[2] - s.pos[2], s.vel[2]) and not self._range_grounded(s):
                 self._lifted = True
+                self.liftoff_s = t
                 if self.takeoff_wait > 0.0:
                     self.liftoff_hover = self.ctrl.hover_thrust_estimate
                     self.say(f"lifted off: the takeoff waited {self.takeoff_wait:.1f} s, the "
@@ -1567,6 +1572,31 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return
         self.console.progress(self._segment_name(t), t, self.traj.duration,
                               float(np.linalg.norm(s.pos - r.pos)), self._link_line)
+
+    def _range_grounded(self, s):
+        """Whether a range finder read at rest before the mission, and within
+        :data:`~mavadrc.rangefinder.RANGE_FRESH_S` of the sample ``s``, still reads the vehicle
+        on the ground (under :data:`~mavadrc.ground.LIFTOFF_HEIGHT` above its reading at rest)
+        when the height estimate reads a lift-off: the lift-off is then the estimate's alone.
+        On PX4 SIH at 1.4 kg (told 1.0), its height estimate read a climb of 0.13-0.19 m/s for
+        2 s while the vehicle sat on the ground under a rising thrust: taken for a lift-off, the
+        reference ran on to 1 m, and the clearance check ended two of four flights 0.0-0.2 m
+        up with the estimate reading 0.35-0.52 m.  Without such a reading (no range finder, or
+        the ground under its minimum distance at rest) the estimate decides alone."""
+        ground = self.rangefinder.ground_height()
+        if self._range_now is None or ground is None:
+            return False
+        t_r, h = self._range_now
+        if s.t - t_r > RANGE_FRESH_S:
+            return False
+        up = h - ground
+        if up >= LIFTOFF_HEIGHT:
+            return False
+        if not self._range_disputed:
+            self._range_disputed = True
+            self.say(f"the height estimate reads a lift-off ({self.origin[2] - s.pos[2]:.2f} m "
+                     f"up) the range finder does not ({up:.2f} m): on the ground until it does")
+        return True
 
     def _takeoff_waits(self, s, r):
         """Whether the takeoff's reference ``r`` (the sample's) has climbed
@@ -1836,8 +1866,12 @@ class Flight(Preflight, GroundPhases, Failsafes):
             summary["hover_thrust_learnt"] = (self.ctrl.hover_thrust_estimate
                                               if self.ctrl.learns_thrust else None)
             # s the takeoff's reference waited for the vehicle to lift off (0: it never did),
-            # and the hover thrust it had been raised to when it did (None: not raised)
+            # and the hover thrust it had been raised to when it did (None: not raised); the
+            # mission time the lift-off was seen (None: not in the mission), and whether a
+            # range finder had held a lift-off the height estimate read for the estimate's alone
             summary["takeoff_wait_s"] = round(self.takeoff_wait, 3)
+            summary["liftoff_s"] = self.liftoff_s
+            summary["liftoff_disputed"] = self._range_disputed
             summary["liftoff_hover_thrust"] = self.liftoff_hover
             # the horizontal drag learnt along the mission (drag_learn), against its start
             summary["drag_learnt"] = None if self._learner is None else self._learner.record()

@@ -42,6 +42,9 @@ CLEARANCE_GAP_M = 0.3
 CLEARANCE_HOLD_S = 0.3
 #: a reading tilted past this (cos of the tilt, 60 deg) is not taken to the vertical
 MIN_COS_TILT = 0.5
+#: a reading younger than this (s of the vehicle's clock, three of PX4's 10 Hz) has a say in
+#: whether the vehicle has lifted off
+RANGE_FRESH_S = 0.3
 
 
 def range_height(msg, cos_tilt):
@@ -73,6 +76,11 @@ class RangeTrack:
     def at_rest(self, est_h, rng_h):
         """A reading before the mission, the vehicle at rest on the ground."""
         self._rest.append(est_h - rng_h)
+
+    def ground_height(self):
+        """The range finder's reading at rest before the mission (m; its mounting height over
+        the takeoff spot's ground), or None without a reading there."""
+        return -float(np.mean(self._rest)) if self._rest else None
 
     def start(self, in_air=False):
         """The alignment fixed from the readings kept: at rest before the mission, or, for a

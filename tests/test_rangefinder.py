@@ -152,6 +152,34 @@ def test_a_drifting_estimate_is_caught_by_the_range_finder_before_the_ground(tmp
     assert (truth0["down"][0] - truth0["down"][airborne & (truth0["t"] > 3.0)]).min() < 0.01
 
 
+def test_a_lift_off_the_estimate_alone_reads_waits_for_the_range_finder(tmp_path):
+    """A vehicle 1.4x as heavy as told, whose height estimate climbs 0.1 m/s from the start (as
+    PX4 SIH's read 0.13-0.19 m/s on the ground at 1.4 kg): the estimate reads a lift-off at
+    once.  Without a range finder that is taken for one, 0.6 s or more before the vehicle leaves
+    the ground by the truth; with one, the range finder's ground reading holds it back, the
+    console says so, and the lift-off is seen within 0.15 s after the true one."""
+    seen = {}
+    for rf in (False, True):
+        out = io.StringIO()
+        summary, folder = fly(mission(tmp_path, f"{{rangefinder: {str(rf).lower()}, "
+                                                "mass_scale: 1.4, height_drift_mps: 0.1}",
+                                      name=f"h{rf}.yaml"),
+                              out=tmp_path / "runs", lockstep=True, figures=False,
+                              progress=False, stream=out)
+        truth = read_table(folder / "truth.csv")
+        up = truth["down"][0] - truth["down"]  # the truth in the estimate's frame
+        true_liftoff = float(truth["t"][np.argmax(up > 0.05)])
+        seen[rf] = (summary, true_liftoff, out.getvalue())
+    summary, true_liftoff, text = seen[False]
+    assert summary["liftoff_s"] < 0.1 and true_liftoff > 0.6
+    assert summary["liftoff_disputed"] is False
+    summary, true_liftoff, text = seen[True]
+    assert summary["liftoff_disputed"] is True
+    assert "the height estimate reads a lift-off" in text and "the range finder does not" in text
+    assert true_liftoff > 0.6
+    assert true_liftoff - 0.02 <= summary["liftoff_s"] <= true_liftoff + 0.15
+
+
 def test_the_console_line_says_what_was_measured():
     track = RangeTrack()
     track.start()
