@@ -246,16 +246,17 @@ def estimate_steps(ts, miss, err, from_s=0.0, window=STEP_WINDOW_S, gap_s=WANDER
     err = np.asarray(err, dtype=float).reshape(-1, 3)
     moved = np.full(ts.size, np.nan)
     for seg in np.split(np.arange(ts.size), np.flatnonzero(np.diff(ts) > gap_s) + 1):
-        k = int(round(smooth_s / float(np.median(np.diff(ts[seg]))))) if seg.size > 1 else 0
-        if k >= 2:  # centred running mean; the half-windows at the ends are dropped
-            seg = seg[k // 2:seg.size - (k - 1 - k // 2)]
-            kern = np.ones(k) / k
-            m = np.column_stack([np.convolve(miss[seg[0] - k // 2:seg[-1] + k - k // 2, i],
-                                             kern, mode="valid") for i in range(3)])
-        else:
-            m = miss[seg]
         if seg.size < 2:
             continue
+        k = int(round(smooth_s / float(np.median(np.diff(ts[seg])))))
+        if k >= 2:  # centred running mean; the half-windows at the ends are dropped
+            if seg.size <= k:
+                continue
+            m = np.column_stack([np.convolve(miss[seg, i], np.ones(k) / k, mode="valid")
+                                 for i in range(3)])
+            seg = seg[k // 2:k // 2 + m.shape[0]]
+        else:
+            m = miss[seg]
         st = ts[seg]
         late = st - window >= st[0]
         if not late.any():

@@ -227,8 +227,9 @@ def test_a_quick_move_of_the_estimate_is_measured_and_named_at_the_largest_error
         assert worst["moved_m"] == pytest.approx(move, rel=0.15)
         line = truth_text(fig, 5.0)
         assert "within 0.5 s it moved up to 0.1" in line and "it had just moved 0.1" in line
-    # a record shorter than the window has no figure, and no words
-    assert estimate_steps(ts[:10], np.zeros((10, 3)), np.zeros((10, 3)))["max_m"] is None
+    # a record shorter than the window, or than the average, has no figure, and no words
+    for n in (5, 10, 20):
+        assert estimate_steps(ts[:n], np.zeros((n, 3)), np.zeros((n, 3)))["max_m"] is None
 
 
 # --- flown on the bundled vehicle ---------------------------------------------------------------
