@@ -1246,6 +1246,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
             return
         if self._waiting:
             return  # the mission's clock stands still: no time to put it at
+        if self.phase in ("cut", "disarming", "done"):
+            # on the ground after the touchdown seen, or the flight over: nothing flown to set
+            # it beside (PX4 SIH's estimate read 0.8 m of climb on the ground after a landing,
+            # which the record's figures had counted as the estimate's error in flight)
+            return
         dt = min(0.1, max(-0.1, msg.time_boot_ms / 1000.0 - s.t))
         est_h = float(self.origin[2] - (s.pos[2] + s.vel[2] * dt))
         t = s.t + dt - self._mission_t0
