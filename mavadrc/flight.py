@@ -61,7 +61,7 @@ from .identify import (MAX_DELAY_S, ORDER, design_lag, failure_text, fit_flight,
                        needs_identification, observer_dead_time, observer_drag, observer_lag,
                        partial_text, response_margin, summary_line)
 from .margin import delay_margin, margin_record, margin_text, prediction_text
-from .rangefinder import RANGE_FRESH_S, RangeTrack, range_height, rangefinder_text
+from .rangefinder import RangeTrack, range_height, rangefinder_text
 from .record import REGULARITY_PERIODS, Recorder, attitude_oscillation, finite
 from .samples import SampleGate
 from .sequence import mode_name
@@ -694,7 +694,6 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self._waited_capped = 0.0  # s of that waiting with the thrust at its bound
         self.liftoff_hover = None  # the hover thrust taken at lift-off, after a wait
         self.liftoff_s = None  # mission time of the lift-off seen
-        self._range_now = None  # (vehicle s, m) the newest range finder reading
         self._range_disputed = False  # the range finder said the estimate's lift-off was not
         self._retry_t = None  # vehicle time to ask for the mode again after a refusal
         self._disarm_refused_wall = None  # wall time of the first refused disarm
@@ -1239,14 +1238,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
         s = self.last
         if h is None or s is None:
             return
-        self._range_now = (msg.time_boot_ms / 1000.0, h)
+        self.rangefinder.read(msg.time_boot_ms / 1000.0, h)
         if self.mission_start is None:
             if not self._lifted:
                 self.rangefinder.at_rest(0.0, h)
             return
         if self._waiting:
             return  # the mission's clock stands still: no time to put it at
-        if self.phase in ("cut", "disarming", "done"):
+        if self.touchdown_seen or self.phase == "done":
             # on the ground after the touchdown seen, or the flight over: nothing flown to set
             # it beside (PX4 SIH's estimate read 0.8 m of climb on the ground after a landing,
             # which the record's figures had counted as the estimate's error in flight)
@@ -1579,23 +1578,17 @@ class Flight(Preflight, GroundPhases, Failsafes):
                               float(np.linalg.norm(s.pos - r.pos)), self._link_line)
 
     def _range_grounded(self, s):
-        """Whether a range finder read at rest before the mission, and within
-        :data:`~mavadrc.rangefinder.RANGE_FRESH_S` of the sample ``s``, still reads the vehicle
-        on the ground (under :data:`~mavadrc.ground.LIFTOFF_HEIGHT` above its reading at rest)
-        when the height estimate reads a lift-off: the lift-off is then the estimate's alone.
+        """Whether a range finder read at rest before the mission, and lately
+        (:meth:`~mavadrc.rangefinder.RangeTrack.height_up` at the sample ``s``), still reads the
+        vehicle on the ground (under :data:`~mavadrc.ground.LIFTOFF_HEIGHT` above its reading at
+        rest) when the height estimate reads a lift-off: the lift-off is then the estimate's alone.
         On PX4 SIH at 1.4 kg (told 1.0), its height estimate read a climb of 0.13-0.19 m/s for
         2 s while the vehicle sat on the ground under a rising thrust: taken for a lift-off, the
         reference ran on to 1 m, and the clearance check ended two of four flights 0.0-0.2 m
         up with the estimate reading 0.35-0.52 m.  Without such a reading (no range finder, or
         the ground under its minimum distance at rest) the estimate decides alone."""
-        ground = self.rangefinder.ground_height()
-        if self._range_now is None or ground is None:
-            return False
-        t_r, h = self._range_now
-        if s.t - t_r > RANGE_FRESH_S:
-            return False
-        up = h - ground
-        if up >= LIFTOFF_HEIGHT:
+        up = self.rangefinder.height_up(s.t)
+        if up is None or up >= LIFTOFF_HEIGHT:
             return False
         if not self._range_disputed:
             self._range_disputed = True

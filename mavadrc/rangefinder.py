@@ -72,15 +72,26 @@ class RangeTrack:
         self.aligned = None
         self.t, self.estimate, self.range = [], [], []
         self._low_since = None
+        self._latest = None  # (vehicle s, m) the newest valid reading
 
     def at_rest(self, est_h, rng_h):
         """A reading before the mission, the vehicle at rest on the ground."""
         self._rest.append(est_h - rng_h)
 
-    def ground_height(self):
-        """The range finder's reading at rest before the mission (m; its mounting height over
-        the takeoff spot's ground), or None without a reading there."""
-        return -float(np.mean(self._rest)) if self._rest else None
+    def read(self, t_vehicle, rng_h):
+        """The newest valid reading (``t_vehicle``: the vehicle's clock, s), in any phase."""
+        self._latest = (t_vehicle, rng_h)
+
+    def height_up(self, t_vehicle):
+        """How far (m) the newest reading is above the readings at rest before the mission
+        (the takeoff spot's ground), or None: no reading at rest, or none within
+        :data:`RANGE_FRESH_S` before ``t_vehicle``."""
+        if self._latest is None or not self._rest:
+            return None
+        t_r, h = self._latest
+        if t_vehicle - t_r > RANGE_FRESH_S:
+            return None
+        return h + float(np.mean(self._rest))  # the rest holds estimate 0 minus each reading
 
     def start(self, in_air=False):
         """The alignment fixed from the readings kept: at rest before the mission, or, for a

@@ -268,8 +268,8 @@ def estimate_steps(ts, miss, err, from_s=0.0, window=STEP_WINDOW_S, gap_s=WANDER
            "at_worst_error": None}
     if not np.isfinite(moved).any():
         return out
-    k = int(np.nanargmax(moved))
-    out["max_m"], out["at_s"] = float(moved[k]), float(ts[k])
+    top = int(np.nanargmax(moved))
+    out["max_m"], out["at_s"] = float(moved[top]), float(ts[top])
     norm = np.linalg.norm(err, axis=1)
     w = int(np.argmax(norm))
     if np.isfinite(moved[w]):
