@@ -475,15 +475,17 @@ def _read_controller(sec, kinds=None):
                   "the observers compensate the samples' age: ladrc and adrc only")
     if sec.has("thrust_estimate"):
         # the time constant (s) with which the thrust per acceleration is learnt in flight from
-        # the vertical observer (0 or false: the figure told is kept; true: the default 2 s)
+        # the vertical disturbance estimate (an observer's z3, a PID's integrator; 0 or false:
+        # the figure told is kept; true: the default 2 s)
         if isinstance(sec.data["thrust_estimate"], bool):
             c.gains["thrust_estimate"] = THRUST_ESTIMATE_S if sec.boolean("thrust_estimate") \
                 else 0.0
         else:
             c.gains["thrust_estimate"] = sec.number("thrust_estimate", ge=0.0, le=60.0)
         sec.check("thrust_estimate", c.gains["thrust_estimate"] == 0.0
-                  or c.kind in ("ladrc", "adrc"),
-                  "the thrust is learnt from the vertical observer: ladrc and adrc only")
+                  or c.kind in ("ladrc", "adrc", "pid"),
+                  "the thrust is learnt from the vertical disturbance estimate (an observer's "
+                  "or a PID's integrator): ladrc, adrc and pid only")
     if sec.has("beta"):
         c.gains["beta"] = tuple(sec.vector("beta", 3, gt=0.0))
     if sec.has("td"):

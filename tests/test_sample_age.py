@@ -187,7 +187,7 @@ def test_the_controller_and_the_mission_file_check_the_latency_and_the_thrust_es
         "thrust_estimate"] == 0.0
     for body, why in (("  type: ladrc\n  thrust_estimate: -1\n", "thrust_estimate"),
                       ("  type: ladrc\n  thrust_estimate: soon\n", "thrust_estimate"),
-                      ("  type: pid\n  thrust_estimate: 2\n", "ladrc and adrc only")):
+                      ("  type: pd\n  thrust_estimate: 2\n", "ladrc, adrc and pid only")):
         with pytest.raises(ConfigError, match=why):
             mission(body)
     for body, why in (("  type: ladrc\n  latency: -0.1\n", "latency"),

@@ -72,7 +72,7 @@ def position_update(S, P, M, IN, pos, vel, rpos, rvel, racc, yaw, out, h, age):
         return False
     if M[G.M_TPA_RATE] > 0.0:
         # from the estimates of the last step (on the ground its z3 was held at 0 after it)
-        learn_thrust(S[2], M, IN[2, IN_STATE], hh)
+        learn_thrust(S[2], M, IN[2, IN_STATE], hh, P[2, K.P_KIND] == K.KIND_PID)
     aged = age == age
     for i in range(3):
         hs = hh
@@ -164,7 +164,7 @@ THRUST_ESTIMATE_S = 2.0
 
 
 @jit
-def learn_thrust(Sz, M, applied, h):
+def learn_thrust(Sz, M, applied, h, pid=False):
     """Learn the thrust per acceleration (M_TPA) from the vertical observer, as PX4's hover
     thrust estimator learns MPC_THR_HOVER.
 
@@ -179,7 +179,11 @@ def learn_thrust(Sz, M, applied, h):
     observer's prediction are what they were, and the vertical loop does not count the weight
     twice while z3 relearns (counted twice, a vehicle 30 % heavier leapt 0.5 m past its
     take-off altitude).  On the ground only a push down is kept in z3 (:func:`kernels.
-    hold_disturbance`): a weight the thrust does not lift is learnt there too."""
+    hold_disturbance`): a weight the thrust does not lift is learnt there too.
+
+    ``pid``: the vertical channel is a PID, whose disturbance estimate is its velocity
+    integrator's (z3 = -I, :func:`kernels.pid_step`): what is learnt is moved out of the
+    integrator too (the read-out z3 is rewritten from it at the next step)."""
     up = M[G.M_G] - applied
     if not (up > 0.25 * M[G.M_G]):
         return  # falling or thrust near its floor: no hover to learn from
@@ -194,6 +198,8 @@ def learn_thrust(Sz, M, applied, h):
     M[G.M_TPA] = tpa
     dz = up * (old / tpa - 1.0)
     Sz[K.S_Z3] += dz
+    if pid:
+        Sz[K.S_I] -= dz
     if Sz.shape[0] >= K.NSD:
         Sz[K.DL_Z1 + 2] += dz
 
@@ -359,9 +365,10 @@ class PositionController:
                            "is part of the observers' model")
         if drag is not None:
             self._IN[:, IN_DRAG] = drag
-        if thrust_estimate_tau is not None and kind not in ("ladrc", "adrc"):
-            raise ValueError("the thrust is learnt from the vertical observer: thrust_estimate_tau "
-                             f"applies to the 'ladrc' and 'adrc' kinds, not {kind!r}")
+        if thrust_estimate_tau is not None and kind not in ("ladrc", "adrc", "pid"):
+            raise ValueError("the thrust is learnt from the vertical disturbance estimate (an "
+                             "observer's z3, a PID's integrator): thrust_estimate_tau applies "
+                             f"to the 'ladrc', 'adrc' and 'pid' kinds, not {kind!r}")
         self._M = G.mapping_params(hover_thrust=hover_thrust, mass=mass, max_thrust=max_thrust,
                                    tilt_max=tilt_max, thrust_min=thrust_min,
                                    thrust_max=thrust_max, g=g,
