@@ -138,6 +138,34 @@ def identification_gains(learn=True):
     return {**default_gains("ladrc", False), "thrust_estimate": learning}
 
 
+#: the controller that flies the takeoff of a flight that identifies its vehicle (``input_lag:
+#: auto``), before anything of the vehicle is known: PX4's cascade, a PID on the measured
+#: velocity (:func:`takeoff_gains`).  Reading the velocity measured, not estimated from the
+#: position, it keeps more delay margin than the safe LADRC on every plant of the family above
+#: (50 ms at its worst corner, a lag of 0.30 s and 50 ms of delay, where SAFE_WC keeps none; 70
+#: ms on PX4 SIH's response, two lags of 0.074 s after 0.076 s of dead time, against 60), and it
+#: stands stiffer against the wind that meets the vehicle as it leaves the ground: lifting off
+#: into 5 m/s of wind, the bundled ``arducopter_quad`` drifted 0.19 m on the safe LADRC and
+#: 0.07 m on it (lockstep), and ArduCopter SITL 0.7 m on the safe LADRC in its own wind.  The
+#: doublets are flown on the safe LADRC (:func:`identification_gains`), which takes over
+#: :data:`TAKEOFF_HANDOVER_S` before the fit's first sample: the drag leg's reading is
+#: calibrated on it (flown on this PID, the leg read PX4 SIH's drag of 1.0 /s as 0.93 in
+#: process, and the slowed defaults flew the spiral 0.15 m off for 0.017).
+TAKEOFF_KIND = "pid"
+TAKEOFF_WC = (2.0, 2.0, 3.0)
+#: s of the safe LADRC's flight before the identify segment's first sample (its transient from
+#: the PID's estimates over by then)
+TAKEOFF_HANDOVER_S = 1.0
+
+
+def takeoff_gains():
+    """The gains of :data:`TAKEOFF_KIND` that fly the takeoff of a flight that identifies its
+    vehicle: the default PID's structure at :data:`TAKEOFF_WC`, learning the hover thrust from
+    its vertical integrator as the observers learn it from their z3 (the safe LADRC that takes
+    over adopts what it learnt)."""
+    return {**default_gains("pid"), "wc": TAKEOFF_WC, "thrust_estimate": THRUST_ESTIMATE_S}
+
+
 def drag_learn_memory(spec, kind=None):
     """The memory (s) with which a controller spec flown as ``kind`` learns the horizontal drag
     in flight (:mod:`mavadrc.learn`): its ``drag_learn``, else :data:`DRAG_LEARN_S` where the
@@ -622,6 +650,12 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.identification = None
         self.gains_scaled = None  # scale_to_vehicle's factors, when they slowed the gains
         self._id_windows = None
+        # an identifying flight's takeoff is flown by a PID (TAKEOFF_KIND) until this mission
+        # time (set with the identify segment's windows), then the safe LADRC made beside it
+        self._takeoff_pid = True
+        self._handover_t = None
+        self._after_takeoff = None
+        self.takeoff_controller = None  # what flew the takeoff, for the summary
         self._id_span = None  # (first window's start, last window's end), mission time
         self._id_data = []
         self._id_job = None  # the fit, running in a thread (real time)
@@ -810,8 +844,11 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _controller_flown(self):
         """(kind, gains) flown now: the mission's, or, while the input model is identified, the
-        safe default LADRC (:data:`SAFE_WC`, no input model)."""
+        safe default LADRC (:data:`SAFE_WC`, no input model), after the takeoff's PID
+        (:func:`takeoff_gains`) until its handover (:meth:`_takeoff_handover`)."""
         if self._identifying():
+            if self._takeoff_pid:
+                return TAKEOFF_KIND, takeoff_gains()
             return "ladrc", identification_gains()
         if self.gains is None:
             self.gains = resolve_gains(
@@ -828,6 +865,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
     def _make_controller(self, hover):
         kind, gains = self._controller_flown()
         ctrl, self.delay_margin = self._build(hover, kind, gains)
+        if self._identifying() and self._takeoff_pid:
+            # the safe LADRC that takes over from the takeoff's PID, made now (its margin is a
+            # few hundred ms of kernels: not in the loop)
+            self._after_takeoff = self._build(hover, "ladrc", identification_gains())
         self._learner = self._drag_learner(ctrl, gains)
         return ctrl
 
@@ -880,6 +921,27 @@ class Flight(Preflight, GroundPhases, Failsafes):
             start, end = self._id_data_span()
             hold = hold or start <= t <= end
         self.ctrl.pause_thrust_learning(hold)
+
+    def _takeoff_handover(self, s, t, ref_vel):
+        """At :attr:`_handover_t` (mission time ``t``, sample ``s``), the takeoff's PID hands
+        the vehicle to the safe LADRC that flies the doublets, without a jump
+        (:func:`carry_over`: its disturbance estimates start at the PID's integrator, the
+        thrust learnt is kept; ``ref_vel``: the reference's velocity now)."""
+        if not self._takeoff_pid or self._handover_t is None or t < self._handover_t - 1e-9:
+            return
+        self._takeoff_pid = False
+        old = self.ctrl
+        self.ctrl, self.delay_margin = self._after_takeoff
+        self._after_takeoff = None
+        carry_over(self.ctrl, old, s.pos, s.vel, ref_vel)
+        up = float(self.origin[2] - s.pos[2])
+        self.takeoff_controller = {**controller_record(self.m.controller, TAKEOFF_KIND,
+                                                       takeoff_gains()),
+                                   "handed_over_at_s": round(t, 3),
+                                   "handed_over_at_m": round(up, 3)}
+        self.say(f"the takeoff's PID hands over to the safe LADRC for the identification "
+                 f"({t:.1f} s into the mission, {up:.2f} m up); "
+                 f"{margin_text(self.delay_margin)}")
 
     def _identify_step(self, s, t, ref_vel):
         """Keep the samples of the identify segment; at its end fit the input model and fly
@@ -1513,6 +1575,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         final = self._in_final_land(t)
         cap = math.radians(self.m.controller.tilt_max_deg) if final else None
         self._pause_learning(t, final)
+        self._takeoff_handover(s, t, rc.vel)
         q, thrust = self._control_step(s, rc, tilt_cap=cap, aref=aref)
         if self._learner is not None and self._lifted:
             self._learner.step(self.ctrl, t, s.dt, rc.vel, rc.acc)
@@ -1901,6 +1964,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary["truth"] = truth
         summary["rangefinder"] = rangefinder
         summary["controller_flown"] = self.controller_record()
+        summary["takeoff_controller"] = self.takeoff_controller
         summary.update(self.context)
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
         try:

@@ -288,6 +288,7 @@ class GroundPhases:
                                                          in_air=self.takeover_in_air)
 
     def _start_mission(self, s):
+        from .flight import TAKEOFF_HANDOVER_S, TAKEOFF_WC
         if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
             self.ctrl.reset(s.pos)
         self._grid = None
@@ -300,6 +301,7 @@ class GroundPhases:
             end = min((t0 for t0, _ in self.phases if t0 > t_id), default=self.traj.duration)
             end -= HANDOVER_S
             self._id_span = (self._id_windows[0][1], max(end, self._id_windows[-1][2]))
+            self._handover_t = self._id_data_span()[0] - TAKEOFF_HANDOVER_S
         self._mission_t0 = s.t
         self.mission_start = s.t
         if self.truth is not None:
@@ -307,8 +309,12 @@ class GroundPhases:
         self._lifted = self.takeover_in_air
         self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
         self.gate.restart(self.h)
+        first = ""
+        if self._identifying() and self._takeoff_pid:
+            first = (f", taking off on a PID on the measured velocity (wc "
+                     f"{TAKEOFF_WC[0]:g}) and identifying the vehicle on the safe LADRC first")
         self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
-                 f"({self.traj.duration:.1f} s){prediction_text(self.ctrl)}; "
+                 f"({self.traj.duration:.1f} s){first}{prediction_text(self.ctrl)}; "
                  f"{margin_text(self.delay_margin)}")
         self._enter("mission", s)
 
