@@ -123,9 +123,11 @@ def default_gains(kind, input_model=False):
 
 
 def identification_gains(learn=True):
-    """The gains that fly the takeoff and the identification's doublets (and, when the fit
-    fails, the rest of the mission): the safe default LADRC.  ``learn``: it learns the hover
-    thrust in the takeoff, paused over the identify segment (the flight pauses it there: the
+    """The gains that fly the identification's doublets (and, when the fit fails, the rest of
+    the mission; in process, where nothing blows at the lift-off, the takeoff too): the safe
+    default LADRC.  In flight it takes over from the takeoff's PID (:func:`takeoff_gains`) and
+    its thrust learnt.  ``learn``: it learns the hover thrust (in flight, from the takeoff on),
+    paused over the identify segment (the flight pauses it there: the
     fit needs the map from commanded to produced acceleration to hold still over its window;
     learnt through the vertical doublets, on PX4 SITL the vertical fit once came out with gain
     -8 and was rejected).  Kept at the figure told through the takeoff, a vehicle heavier than
