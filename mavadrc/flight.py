@@ -669,6 +669,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.delay_margin = None  # of the controller flown, on the plant it assumes (s)
         self.traj = None
         self.origin = None
+        self.origin_moved_m = None  # how far the estimate moved on the ground before the mission
         self.mission_start = None
         self.phases = []
         self.motor_delay = 0.0
@@ -1967,6 +1968,7 @@ class Flight(Preflight, GroundPhases, Failsafes):
         summary["rangefinder"] = rangefinder
         summary["controller_flown"] = self.controller_record()
         summary["takeoff_controller"] = self.takeoff_controller
+        summary["takeoff_spot_moved_m"] = self.origin_moved_m
         summary.update(self.context)
         summary = finite(summary)  # a figure that does not exist is None, in the file and here
         try:

@@ -287,9 +287,22 @@ class GroundPhases:
         self.traj, self.phases = self.m.build_trajectory(self.origin,
                                                          in_air=self.takeover_in_air)
 
+    def _anchor_here(self, s):
+        """The takeoff starts where the position estimate has the vehicle when the mission
+        starts: the mission's frame moved horizontally to it from where it was measured before
+        the mode change, the arming and the spool-up (seconds, over which PX4 SIH's estimate of
+        a vehicle at rest wandered 0.05-0.10 m: the loop lifted off already that far from its
+        reference, tilted towards it on the ground).  The height keeps the spot measured: it
+        is what the lift-off is judged against."""
+        moved = s.pos[:2] - self.origin[:2]
+        self.origin_moved_m = round(float(np.hypot(*moved)), 4)
+        self.origin[:2] = s.pos[:2]
+        self.traj, self.phases = self.m.build_trajectory(self.origin, in_air=False)
+
     def _start_mission(self, s):
         from .flight import TAKEOFF_HANDOVER_S, TAKEOFF_WC
         if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
+            self._anchor_here(s)
             self.ctrl.reset(s.pos)
         self._grid = None
         if self._identifying():

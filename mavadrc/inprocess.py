@@ -492,6 +492,11 @@ def fly_inprocess(mission, kind=None, seed=None, wind=None, vehicle_options=None
     if sent == 0:
         raise RuntimeError("the link delivered no sample to start the mission on")
     ctrl.reset(start[:3])
+    # the mission's frame moved horizontally to where the estimate has the vehicle at the
+    # start, as a flight moves it (GroundPhases._anchor_here)
+    origin = np.array(origin, dtype=np.float64)
+    origin[:2] = start[:2]
+    traj, phases = mission.build_trajectory(origin)
     t0 = float(stimes[int(start[4])])
     v.ran(sent * per)
     # the mission steps: one per sample the companion gets, at the sample's time as the wire
