@@ -185,6 +185,8 @@ def test_the_controller_and_the_mission_file_check_the_latency_and_the_thrust_es
         "thrust_estimate"] == 2.0
     assert mission("  type: pd\n  thrust_estimate: false\n").controller.gains[
         "thrust_estimate"] == 0.0
+    assert mission("  type: pid\n  thrust_estimate: 2\n").controller.gains[
+        "thrust_estimate"] == 2.0  # from its integrator
     for body, why in (("  type: ladrc\n  thrust_estimate: -1\n", "thrust_estimate"),
                       ("  type: ladrc\n  thrust_estimate: soon\n", "thrust_estimate"),
                       ("  type: pd\n  thrust_estimate: 2\n", "ladrc, adrc and pid only")):
