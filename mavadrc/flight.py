@@ -123,10 +123,10 @@ def default_gains(kind, input_model=False):
 
 
 def identification_gains(learn=True):
-    """The gains that fly the identification's doublets (and, when the fit fails, the rest of
-    the mission; in process, where nothing blows at the lift-off, the takeoff too): the safe
-    default LADRC.  In flight it takes over from the takeoff's PID (:func:`takeoff_gains`) and
-    its thrust learnt.  ``learn``: it learns the hover thrust (in flight, from the takeoff on),
+    """The gains that fly the takeoff and the identification's doublets (and, when the fit
+    fails, the rest of the mission): the safe default LADRC; a mission that asks for the
+    takeoff's PID (:func:`takeoff_gains`) has them take over from it, and its thrust learnt,
+    before the doublets.  ``learn``: it learns the hover thrust in the takeoff,
     paused over the identify segment (the flight pauses it there: the
     fit needs the map from commanded to produced acceleration to hold still over its window;
     learnt through the vertical doublets, on PX4 SITL the vertical fit once came out with gain
@@ -140,18 +140,21 @@ def identification_gains(learn=True):
     return {**default_gains("ladrc", False), "thrust_estimate": learning}
 
 
-#: the controller that flies the takeoff of a flight that identifies its vehicle (``input_lag:
-#: auto``), before anything of the vehicle is known: PX4's cascade, a PID on the measured
-#: velocity (:func:`takeoff_gains`).  Reading the velocity measured, not estimated from the
-#: position, it keeps more delay margin than the safe LADRC on every plant of the family above
-#: (50 ms at its worst corner, a lag of 0.30 s and 50 ms of delay, where SAFE_WC keeps none; 70
-#: ms on PX4 SIH's response, two lags of 0.074 s after 0.076 s of dead time, against 60), and it
-#: stands stiffer against the wind that meets the vehicle as it leaves the ground: lifting off
-#: into 5 m/s of wind, the bundled ``arducopter_quad`` drifted 0.19 m on the safe LADRC and
-#: 0.07 m on it (lockstep), and ArduCopter SITL 0.7 m on the safe LADRC in its own wind.  The
-#: doublets are flown on the safe LADRC (:func:`identification_gains`), which takes over
-#: :data:`TAKEOFF_HANDOVER_S` before the fit's first sample: the drag leg's reading is
-#: calibrated on it (flown on this PID, the leg read PX4 SIH's drag of 1.0 /s as 0.93 in
+#: what flies the takeoff of a flight that identifies its vehicle (``input_lag: auto``) when the
+#: mission asks for it (``controller: {takeoff: pid}``; by default the safe LADRC does): PX4's
+#: cascade, a PID on the measured velocity (:func:`takeoff_gains`).  Reading the velocity
+#: measured, not estimated from the position, it keeps more delay margin than the safe LADRC on
+#: every plant of the family above (50 ms at its worst corner, a lag of 0.30 s and 50 ms of
+#: delay, where SAFE_WC keeps none; 70 ms on PX4 SIH's response, two lags of 0.074 s after 0.076
+#: s of dead time, against 60), and it stands stiffer against the wind that meets the vehicle as
+#: it leaves the ground: lifting off into 5 m/s of wind, the bundled ``arducopter_quad`` drifted
+#: 0.19 m on the safe LADRC and 0.07 m on it (lockstep), ArduCopter SITL 0.69-0.70 m and
+#: 0.24-0.25 m in its own wind.  But it trusts the velocity estimate: on PX4 SIH, whose EKF2
+#: velocity ran the wrong way for seconds in the climb, it drifted 0.08-0.78 m by SIH's truth
+#: where the safe LADRC, reading the position only, drifted 0.15-0.23, so it is not the
+#: default.  The doublets are flown on the safe LADRC (:func:`identification_gains`), which
+#: takes over :data:`TAKEOFF_HANDOVER_S` before the fit's first sample: the drag leg's reading
+#: is calibrated on it (flown on this PID, the leg read PX4 SIH's drag of 1.0 /s as 0.93 in
 #: process, and the slowed defaults flew the spiral 0.15 m off for 0.017).
 TAKEOFF_KIND = "pid"
 TAKEOFF_WC = (2.0, 2.0, 3.0)
@@ -652,9 +655,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
         self.identification = None
         self.gains_scaled = None  # scale_to_vehicle's factors, when they slowed the gains
         self._id_windows = None
-        # an identifying flight's takeoff is flown by a PID (TAKEOFF_KIND) until this mission
-        # time (set with the identify segment's windows), then the safe LADRC made beside it
-        self._takeoff_pid = True
+        # an identifying flight's takeoff is flown, when the mission asks (controller: {takeoff:
+        # pid}), by a PID (TAKEOFF_KIND) until this mission time (set with the identify
+        # segment's windows), then by the safe LADRC made beside it
+        self._takeoff_pid = self.m.controller.takeoff == "pid"
         self._handover_t = None
         self._after_takeoff = None
         self.takeoff_controller = None  # what flew the takeoff, for the summary
@@ -2031,6 +2035,8 @@ def controller_record(spec, kind, gains):
            "thrust_min": spec.thrust_min, "thrust_max": spec.thrust_max}
     if spec.thrust_tilt != "commanded":
         rec["thrust_tilt"] = spec.thrust_tilt
+    if spec.takeoff != "safe" and kind in ("ladrc", "adrc"):
+        rec["takeoff"] = spec.takeoff
     for k, v in (gains or {}).items():
         rec[k] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
     return rec

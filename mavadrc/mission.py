@@ -35,6 +35,9 @@ from .learn import TAU_S as DRAG_LEARN_S
 KINDS = ("adrc", "ladrc", "pd", "pid")
 #: what a controller's ``thrust_tilt`` may say (:class:`ControllerSpec`)
 THRUST_TILTS = ("commanded", "measured")
+#: what flies the takeoff of a flight that identifies its vehicle (``takeoff``): the safe
+#: LADRC, or a PID on the measured velocity (mavadrc.flight.TAKEOFF_KIND)
+TAKEOFFS = ("safe", "pid")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
 #: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
 FINAL_HEIGHT = 0.5
@@ -56,6 +59,11 @@ class ControllerSpec:
     #: asked for), or the one the vehicle reports now ("measured": its vertical part is the one
     #: asked for, whatever the attitude loop has reached; geometry.thrust_for_tilt)
     thrust_tilt: str = "commanded"
+    #: what flies the takeoff before the identification (``input_lag: auto``): "safe", the safe
+    #: default LADRC that flies the doublets, or "pid", a PID on the measured velocity, stiffer
+    #: against the wind at the lift-off but misled by a velocity estimate that strays
+    #: (README, "The takeoff's PID")
+    takeoff: str = "safe"
 
 
 @dataclass
@@ -402,6 +410,7 @@ def _read_controller(sec, kinds=None):
     c.thrust_min = sec.number("thrust_min", 0.05, ge=0.0, lt=1.0)
     c.thrust_max = sec.number("thrust_max", 1.0, gt=0.0, le=1.0)
     c.thrust_tilt = sec.string("thrust_tilt", "commanded", choices=THRUST_TILTS)
+    c.takeoff = sec.string("takeoff", "safe", choices=TAKEOFFS)
     per_axis = ("wc", "wo", "b0", "kp", "kd", "r0", "h0", "r", "c", "h1", "delta", "accel_max")
     for key in per_axis:
         if sec.has(key):
@@ -432,6 +441,9 @@ def _read_controller(sec, kinds=None):
             n = sec.number("input_lags")
             sec.check("input_lags", n in (1, 2), f"must be 1 or 2 (got {n!r})")
             c.gains["input_lags"] = int(n)
+    sec.check("takeoff", c.takeoff == "safe" or c.gains.get("input_lag") == "auto",
+              "chooses what flies the takeoff before the vehicle is identified: give "
+              "input_lag: auto too")
     if sec.has("predict"):
         # the law acts on its errors carried over the input model's delay (PositionController)
         c.gains["predict"] = sec.boolean("predict")

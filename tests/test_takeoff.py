@@ -1,8 +1,10 @@
-"""The takeoff of a flight that identifies its vehicle (``input_lag: auto``) is flown by a PID on
-the measured velocity (flight.TAKEOFF_KIND), which hands over to the safe LADRC before the
-doublets.  Lifting off into a steady wind, the wind meets the vehicle as a step: the safe LADRC
-(wc 1, wo 4, the bandwidths an observer may keep on a vehicle nobody described) drifted 0.19 m
-with it on the bundled ArduCopter quad, 0.7 m on ArduCopter SITL in its own 5 m/s wind."""
+"""The takeoff of a flight that identifies its vehicle (``input_lag: auto``) is flown by the safe
+LADRC, or, when the mission asks (``controller: {takeoff: pid}``), by a PID on the measured
+velocity (flight.TAKEOFF_KIND), which hands over to the safe LADRC before the doublets.  Lifting
+off into a steady wind, the wind meets the vehicle as a step: the safe LADRC (wc 1, wo 4, the
+bandwidths an observer may keep on a vehicle nobody described) drifted 0.19 m with it on the
+bundled ArduCopter quad, 0.7 m on ArduCopter SITL in its own 5 m/s wind.  And wherever it is
+flown from, the takeoff starts where the position estimate has the vehicle."""
 
 import io
 import json
@@ -17,7 +19,7 @@ from sim.vehicle import response_time_constants
 
 WINDY = """name: windy lift-off
 vehicle: arducopter_quad
-controller: {type: ladrc, rate_hz: 100, input_lag: auto}
+controller: {type: ladrc, rate_hz: 100, input_lag: auto, takeoff: pid}
 trajectory:
   - takeoff: {altitude: 3.0, speed: 1.0}
   - hover: {duration: 2}
@@ -84,6 +86,25 @@ def test_the_pid_hands_over_before_the_doublets_without_a_jump(windy):
     xy, _ = response_time_constants("arducopter_quad")
     assert summary["identification"]["input_lag"][0] == pytest.approx(xy, rel=0.15)
     assert summary["controller_flown"]["type"] == "ladrc"
+    assert summary["controller_flown"]["takeoff"] == "pid"  # the mission flies again as flown
+
+
+@pytest.mark.parametrize("body, why", [
+    ("  type: ladrc\n  takeoff: pid\n", "input_lag: auto"),
+    ("  type: ladrc\n  input_lag: [0.1, 0.1, 0.05]\n  takeoff: pid\n", "input_lag: auto"),
+    ("  type: ladrc\n  input_lag: auto\n  takeoff: fast\n", "takeoff"),
+])
+def test_the_takeoff_choice_is_checked(tmp_path, body, why):
+    from sim.yamlio import ConfigError
+    path = tmp_path / "m.yaml"
+    path.write_text("trajectory:\n  - takeoff: {altitude: 1.0}\n  - land: {speed: 0.5}\n"
+                    "controller:\n" + body)
+    with pytest.raises(ConfigError, match=why) as err:
+        load_mission(path)
+    assert "m.yaml" in str(err.value) and "takeoff" in str(err.value)
+    path.write_text("trajectory:\n  - takeoff: {altitude: 1.0}\n  - land: {speed: 0.5}\n"
+                    "controller:\n  type: adrc\n  input_lag: auto\n  takeoff: pid\n")
+    assert load_mission(path).controller.takeoff == "pid"
 
 
 WANDER = """name: takeoff where the estimate has it
@@ -120,6 +141,8 @@ def test_the_takeoff_starts_where_the_estimate_has_the_vehicle(tmp_path, monkeyp
 
     summary, err = flown("anchored")
     assert summary["landed"]
+    assert summary["takeoff_controller"] is None  # the safe LADRC's, as by default
+    assert "takeoff" not in summary["controller_flown"]
     assert summary["takeoff_spot_moved_m"] > 0.1
     assert err[0] < 0.01 and err.max() < 0.08, (err[0], err.max())
     monkeypatch.setattr(G.GroundPhases, "_anchor_here", lambda self, s: None)
