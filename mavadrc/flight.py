@@ -153,14 +153,11 @@ def identification_gains(learn=True):
 #: velocity ran the wrong way for seconds in the climb, it drifted 0.08-0.78 m by SIH's truth
 #: where the safe LADRC, reading the position only, drifted 0.15-0.23, so it is not the
 #: default.  The doublets are flown on the safe LADRC (:func:`identification_gains`), which
-#: takes over :data:`TAKEOFF_HANDOVER_S` before the fit's first sample: the drag leg's reading
-#: is calibrated on it (flown on this PID, the leg read PX4 SIH's drag of 1.0 /s as 0.93 in
-#: process, and the slowed defaults flew the spiral 0.15 m off for 0.017).
+#: takes over :data:`mavadrc.identify.TAKEOFF_HANDOVER_S` before the fit's first sample: the
+#: drag leg's reading is calibrated on it (flown on this PID, the leg read PX4 SIH's drag of
+#: 1.0 /s as 0.93 in process, and the slowed defaults flew the spiral 0.15 m off for 0.017).
 TAKEOFF_KIND = "pid"
 TAKEOFF_WC = (2.0, 2.0, 3.0)
-#: s of the safe LADRC's flight before the identify segment's first sample (its transient from
-#: the PID's estimates over by then)
-TAKEOFF_HANDOVER_S = 1.0
 
 
 def takeoff_gains():
@@ -928,6 +925,14 @@ class Flight(Preflight, GroundPhases, Failsafes):
             start, end = self._id_data_span()
             hold = hold or start <= t <= end
         self.ctrl.pause_thrust_learning(hold)
+
+    def _takeoff_text(self):
+        """What flies the takeoff, for the line that starts the mission ("" when it is the
+        controller named there, or the safe LADRC of an identifying flight)."""
+        if not (self._identifying() and self._takeoff_pid):
+            return ""
+        return (f", taking off on a PID on the measured velocity (wc {TAKEOFF_WC[0]:g}) and "
+                "identifying the vehicle on the safe LADRC first")
 
     def _takeoff_handover(self, s, t, ref_vel):
         """At :attr:`_handover_t` (mission time ``t``, sample ``s``), the takeoff's PID hands

@@ -16,7 +16,7 @@ import numpy as np
 from .control.geometry import GRAVITY
 from .control.rotations import level_quat, wrap_pi
 from .link import TIMEOUT, FlightError, M, result_name
-from .identify import HANDOVER_S, leg_speed_of, windows_in
+from .identify import HANDOVER_S, TAKEOFF_HANDOVER_S, leg_speed_of, windows_in
 from .margin import margin_text, prediction_text
 from .mission import FINAL_SPEED
 from .trajectories import Reference
@@ -300,7 +300,6 @@ class GroundPhases:
         self.traj, self.phases = self.m.build_trajectory(self.origin, in_air=False)
 
     def _start_mission(self, s):
-        from .flight import TAKEOFF_HANDOVER_S, TAKEOFF_WC
         if not self.takeover_in_air:  # taking over, the controller already holds the vehicle
             self._anchor_here(s)
             self.ctrl.reset(s.pos)
@@ -322,12 +321,9 @@ class GroundPhases:
         self._lifted = self.takeover_in_air
         self._yaw_offset = wrap_pi(self.yaw - float(self.traj.sample(0.0).yaw))
         self.gate.restart(self.h)
-        first = ""
-        if self._identifying() and self._takeoff_pid:
-            first = (f", taking off on a PID on the measured velocity (wc "
-                     f"{TAKEOFF_WC[0]:g}) and identifying the vehicle on the safe LADRC first")
         self.say(f"flying {self.m.name!r} with {self.kind} at {self.rate:g} Hz "
-                 f"({self.traj.duration:.1f} s){first}{prediction_text(self.ctrl)}; "
+                 f"({self.traj.duration:.1f} s){self._takeoff_text()}"
+                 f"{prediction_text(self.ctrl)}; "
                  f"{margin_text(self.delay_margin)}")
         self._enter("mission", s)
 

@@ -65,6 +65,11 @@ LEG_SETTLE_S = 1.0
 #: mission's controller then takes over at rest, not in the run-up to the next segment, where
 #: the safe observers' lagging disturbance estimate made its first commands jump
 HANDOVER_S = 3.0
+#: s before the identify segment's first sample (less MAX_DELAY_S and 0.1 s, from where the fit
+#: reads its commands) at which a takeoff flown by the takeoff's PID (a mission's ``takeoff:
+#: pid``) hands the vehicle to the safe LADRC: its transient from the PID's estimates over by
+#: then
+TAKEOFF_HANDOVER_S = 1.0
 #: the fit: dead times searched (s), lags searched (s), the integration grid (s)
 MAX_DELAY_S = 0.3
 TAU_RANGE_S = (0.005, 1.0)

@@ -65,8 +65,8 @@ def test_the_pid_hands_over_before_the_doublets_without_a_jump(windy):
     """The safe LADRC takes over TAKEOFF_HANDOVER_S before the fit's first sample, starting
     from the PID's integrator as its disturbance estimate: the command does not jump, and the
     identification is the safe LADRC's as before (the vehicle's 63 % time within 15 %)."""
-    from mavadrc.flight import TAKEOFF_HANDOVER_S, TAKEOFF_KIND, TAKEOFF_WC
-    from mavadrc.identify import MAX_DELAY_S
+    from mavadrc.flight import TAKEOFF_KIND, TAKEOFF_WC
+    from mavadrc.identify import MAX_DELAY_S, TAKEOFF_HANDOVER_S
     summary, table, _ = windy
     took = summary["takeoff_controller"]
     assert took["type"] == TAKEOFF_KIND and took["wc"] == list(TAKEOFF_WC)
