@@ -1711,8 +1711,10 @@ class Flight(Preflight, GroundPhases, Failsafes):
 
     def _link_line(self):
         loss = self.gate.recent_loss()
+        ooo = self.gate.recent_out_of_order()
         rtt = self.link.timesync.rtts[-1] if self.link.timesync.rtts else None
-        return (f"{self.gate.achieved_rate():.0f} Hz, lost {100 * loss:.1f} %"
+        return (f"{self.gate.achieved_rate():.0f} Hz, lost {100 * (loss - ooo):.1f} %"
+                + (f", out of order {100 * ooo:.1f} %" if ooo >= 0.0005 else "")
                 + (f", rtt {1e3 * rtt:.1f} ms" if rtt is not None and not self.lockstep else ""))
 
     def _check_link(self):

@@ -223,15 +223,20 @@ class Preflight:
 
     def _judge_rate(self):
         """The rate the samples come at, against the one asked for.  Samples lost on the link
-        (gaps in the MAVLink sequence) leave the stream's rate as it is: the steps are timed
-        by the vehicle across the gaps.  A vehicle that sends slower than asked is flown at the
-        rate it sends, and said so.  Below ``safety.min_rate_hz`` the flight is refused."""
+        (gaps in the MAVLink sequence) or come out of order (behind a newer one, dropped) leave
+        the stream's rate as it is: the steps are timed by the vehicle across the gaps.  A
+        vehicle that sends slower than asked is flown at the rate it sends, and said so.  Below
+        ``safety.min_rate_hz`` the flight is refused."""
         asked = self.m.controller.rate_hz
         got = self.gate.achieved_rate()
         lost = self.link.frame_loss()
-        stream = got / (1.0 - lost) if lost < 0.9 else got
-        seen = (f"{got:.1f} Hz reach us: the vehicle sends {stream:.1f} Hz and "
+        arrived = self.gate.arrival_rate()
+        stream = arrived / (1.0 - lost) if lost < 0.9 else arrived
+        seen = (f"{got:.1f} Hz reach us in order: the vehicle sends {stream:.1f} Hz, "
                 f"{100 * lost:.0f} % of its frames are lost on the link")
+        if arrived > got:
+            seen += (f" and {100 * (1.0 - got / arrived):.0f} % of the samples that came were "
+                     "out of order (behind a newer one, dropped)")
         if got < self.m.safety.min_rate_hz:
             raise FlightError(f"{seen}, where {asked:g} Hz was asked: below safety.min_rate_hz "
                               f"{self.m.safety.min_rate_hz:g}, not flying")

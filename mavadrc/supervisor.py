@@ -40,6 +40,8 @@ unreachable          give up           no heartbeat: nothing more can be done
 
 import math
 
+from .samples import missed_text
+
 CONTINUE, WATCH, HOLD_THEN_LAND, LAND, GIVE_UP = range(5)
 ACTION_NAMES = {CONTINUE: "continue", WATCH: "watch", HOLD_THEN_LAND: "hold, then land",
                 LAND: "land", GIVE_UP: "give up"}
@@ -117,8 +119,8 @@ class Supervisor:
         """Sample loss over the last seconds, or a gap, past the mission's limits."""
         loss = gate.recent_loss()
         if loss > self.sf.max_sample_loss:
-            return (f"link: {100 * loss:.0f} % of the samples lost over the last seconds "
-                    f"(limit {100 * self.sf.max_sample_loss:.0f} %)")
+            return (f"link: {missed_text(loss, gate.recent_out_of_order())} over the last "
+                    f"seconds (limit {100 * self.sf.max_sample_loss:.0f} % missed)")
         if gate.longest_gap > self.sf.max_gap_s:
             return (f"link: a {gate.longest_gap:.2f} s gap between samples "
                     f"(limit {self.sf.max_gap_s:.2f} s)")
@@ -129,7 +131,7 @@ class Supervisor:
         """Worth a warning, not an ending: loss past 2 %, or a gap past 3 periods."""
         loss = gate.recent_loss()
         if loss > 0.02:
-            return f"{100 * loss:.1f} % of the samples lost"
+            return missed_text(loss, gate.recent_out_of_order())
         if gate.intervals and gate.intervals[-1] > 3.0 * gate.period:
             return f"a {gate.intervals[-1]:.3f} s gap between samples"
         return None
