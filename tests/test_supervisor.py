@@ -155,6 +155,15 @@ def test_samples_out_of_order_are_told_from_samples_lost():
     # an ordered link with losses says "lost" as before; one that only reorders, no "lost"
     assert missed_text(0.05, 0.0) == "5.0 % of the samples lost"
     assert "lost" not in missed_text(0.12, 0.12)
+    # the live line splits them the same way
+    import types
+
+    from mavadrc.flight import Flight
+
+    f = types.SimpleNamespace(gate=g, lockstep=False,
+                              link=types.SimpleNamespace(timesync=types.SimpleNamespace(rtts=[])))
+    line = Flight._link_line(f)
+    assert f"lost {100 * (recent - ooo):.1f} %, out of order {100 * ooo:.1f} %" in line
     # a late sample from before the counting restarted is no missing sample of the new count
     g.restart()
     feed(g, [20000, 20010])
