@@ -41,15 +41,15 @@ def pytest_xdist_auto_num_workers(config):
 WARM_UPS = (
     "from sim.cli import warm_up; warm_up('x500', 'thesis', 'px4')",
     "import numpy as np\n"
-    "from mavadrc.flight import make_controller\n"
-    "from mavadrc.inprocess import fly_inprocess\n"
-    "from mavadrc.mission import load_mission\n"
+    "from mavadrc.design.gains import make_controller\n"
+    "from mavadrc.fast.fly import fly_inprocess\n"
+    "from mavadrc.mission.config import load_mission\n"
     "m = load_mission('configs/missions/hover.yaml')\n"
     "fly_inprocess(m)\n"
     "for kind in ('ladrc', 'adrc', 'pd', 'pid'):\n"
     "    c = make_controller(m.controller, hover_thrust=0.5, kind=kind, vehicle='x500')\n"
     "    c.reset(np.zeros(3)); c.update(np.zeros(3), np.zeros(3), np.zeros(3))\n"
-    "from mavadrc.identify import load_fitting\n"
+    "from mavadrc.design.identify import load_fitting\n"
     "load_fitting()\n",
 )
 

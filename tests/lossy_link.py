@@ -18,8 +18,8 @@ Usage (a flight of the companion over a lossy link)::
 
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
     from lossy_link import LossyLink, start_lossy_vehicle
-    from mavadrc.fly import fly
-    from mavadrc.mission import load_mission
+    from mavadrc.flight.fly import fly
+    from mavadrc.mission.config import load_mission
 
     mission = load_mission("configs/missions/hover.yaml")
 

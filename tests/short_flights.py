@@ -5,8 +5,8 @@ import io
 
 from lossy_link import start_lossy_vehicle
 
-from mavadrc.fly import fly
-from mavadrc.mission import load_mission
+from mavadrc.flight.fly import fly
+from mavadrc.mission.config import load_mission
 
 
 SHORT = """name: short hover
@@ -33,7 +33,7 @@ def fly_through(link, mission, tmp_path, **kw):
     out = io.StringIO()
     kw.setdefault("timeout", 90.0)
     summary, folder = fly(mission, connect=link.companion_url, out=tmp_path / "runs",
-                          figures=False, progress=False, stream=out, **kw)
+                          progress=False, stream=out, **kw)
     return summary, folder, out.getvalue()
 
 

@@ -10,7 +10,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: spe
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from mavadrc.embedded import free_tcp_port, free_udp_port, udp_sink  # noqa: F401  (re-exported)
+from mavadrc.flight.embedded import free_tcp_port, free_udp_port, udp_sink  # noqa: F401  (re-exported)
 from sim.server import SitlServer
 from sim.vehicle import SimVehicle
 
@@ -210,9 +210,9 @@ def both_paths(exp, i, j, seed, tmp_path):
 
     import numpy as np
 
-    from mavadrc.experiment import run_inprocess, run_mavlink
-    from mavadrc.inprocess import L_T
-    from mavadrc.record import read_table
+    from mavadrc.study.experiment import run_inprocess, run_mavlink
+    from mavadrc.fast.inprocess import L_T
+    from mavadrc.flight.record import read_table
 
     rec_fast, log = run_inprocess(exp, i, j, seed, keep_log=True)
     rec_wire, _ = run_mavlink(exp, i, j, seed, tmp_path)

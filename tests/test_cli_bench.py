@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from mavadrc.bench import sitl_figures
+from mavadrc.study.bench import sitl_figures
 
 UNITS = ("_us", "_ms", "_s", "_x_realtime", "_pct", "_pct_of_core")
 
@@ -35,7 +35,7 @@ def test_bench_json_prints_the_control_and_physics_figures():
 def test_bench_says_a_peer_is_not_installed_and_how_to_install_it(monkeypatch):
     import io
 
-    from mavadrc import bench
+    from mavadrc.study import bench
 
     figures = {"linear_adrc_step_us": 0.31, "pyadrc_statespace_step_us": None,
                "ratio_pyadrc_over_linear_adrc": None, "rotorpy_step_us": None}
@@ -62,7 +62,7 @@ def test_sitl_figures_measure_a_running_vehicle():
 def test_bench_flies_lockstep_alone_and_two_at_once(tmp_path):
     """The figures of two lockstep flights side by side: both flown as processes of their own
     (a failed one raises), the walls and their ratio reported."""
-    from mavadrc.bench import _lockstep_side_by_side
+    from mavadrc.study.bench import _lockstep_side_by_side
     path = tmp_path / "hover.yaml"
     path.write_text("name: bench hover\nvehicle: crazyflie\n"
                     "controller: {type: ladrc, rate_hz: 100}\ntrajectory:\n"

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from mavadrc.cli import main
-from mavadrc.embedded import free_udp_port
-from mavadrc.experiment import experiment_from_text
-from mavadrc.fly import fly
-from mavadrc.link import FlightError, LinkError
-from mavadrc.mission import load_mission
+from mavadrc.cli.main import main
+from mavadrc.flight.embedded import free_udp_port
+from mavadrc.study.experiment import experiment_from_text
+from mavadrc.flight.fly import fly
+from mavadrc.errors import FlightError
+from mavadrc.mavlink.link import LinkError
+from mavadrc.mission.config import load_mission
 from sim.yamlio import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,7 +85,7 @@ def test_a_vehicle_that_dies_at_start_is_reported_at_once_with_its_words(tmp_pat
     mission.autopilot = "nope"  # the vehicle's own argument check refuses it and exits
     t0 = time.monotonic()
     with pytest.raises(FlightError) as err:
-        fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+        fly(mission, out=tmp_path, lockstep=True, progress=False,
             stream=io.StringIO())
     assert time.monotonic() - t0 < 30.0  # not the 120 s heartbeat wait (compiling included)
     msg = str(err.value)
@@ -101,7 +102,7 @@ def test_a_connect_that_hears_nothing_leaves_no_record_folder(tmp_path):
     out = io.StringIO()
     with pytest.raises(LinkError, match="no heartbeat"):
         fly(mission, connect=f"udpin:127.0.0.1:{free_udp_port()}", out=tmp_path, timeout=1.5,
-            figures=False, progress=False, stream=out)
+            progress=False, stream=out)
     assert list(tmp_path.iterdir()) == []
     assert "waiting for an autopilot's heartbeat on udpin:127.0.0.1:" in out.getvalue()
 
@@ -346,7 +347,7 @@ def test_a_list_or_a_scalar_where_a_mapping_belongs_is_said_in_words(text, where
     ("ardupilot", 99, "custom_mode 99"), (None, 0x3040000, "custom_mode 0x3040000"),
 ])
 def test_flight_modes_are_named_as_the_autopilot_names_them(autopilot, custom_mode, name):
-    from mavadrc.sequence import mode_name, sequence_for
+    from mavadrc.mavlink.sequence import mode_name, sequence_for
 
     assert mode_name(autopilot, custom_mode) == name
     if autopilot is not None:
@@ -357,7 +358,7 @@ def test_flight_modes_are_named_as_the_autopilot_names_them(autopilot, custom_mo
 
 def test_a_controller_is_named_in_either_case_and_a_wrong_name_lists_the_choices(capsys,
                                                                                  tmp_path):
-    from mavadrc.cli import build_parser
+    from mavadrc.cli.main import build_parser
 
     for spelt in ("LADRC", "ladrc", "Ladrc"):
         assert build_parser().parse_args(["fly", "hover", "--controller", spelt]).controller \
@@ -385,7 +386,7 @@ def test_a_controller_is_named_in_either_case_and_a_wrong_name_lists_the_choices
 def test_every_command_has_a_description_and_the_top_names_every_controller():
     from argparse import _SubParsersAction
 
-    from mavadrc.cli import build_parser
+    from mavadrc.cli.main import build_parser
 
     parser = build_parser()
     assert "(ADRC, LADRC, PD, PID)" in parser.format_help()
@@ -396,7 +397,7 @@ def test_every_command_has_a_description_and_the_top_names_every_controller():
 
 
 def test_the_progress_line_keeps_a_long_segment_name_whole():
-    from mavadrc.console import Console, counted
+    from mavadrc.flight.console import Console, counted
 
     out = io.StringIO()
     Console(out).progress("transit to thesis_spiral", 3.0, 60.0, 0.25)

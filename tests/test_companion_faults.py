@@ -21,11 +21,12 @@ from pymavlink import mavutil
 from short_flights import FAST_PX4, fly_through, lossy_vehicle, short_mission, stop
 from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
 
-from mavadrc.flight import Flight
-from mavadrc.fly import fly
-from mavadrc.link import FlightError, Link, LinkError
-from mavadrc.mission import load_mission
-from mavadrc.record import FlightRecord, read_table
+from mavadrc.flight.flight import Flight
+from mavadrc.flight.fly import fly
+from mavadrc.errors import FlightError
+from mavadrc.mavlink.link import Link, LinkError
+from mavadrc.mission.config import load_mission
+from mavadrc.flight.record import FlightRecord, read_table
 
 M = mavutil.mavlink
 
@@ -190,7 +191,7 @@ def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
     law on 30 Hz samples in silence.  The first stream is asked STREAM_TRIES times; once it
     went unanswered, each of the rest fewer (PX4's list of eight took 20 s asked five times
     each)."""
-    from mavadrc.preflight import STREAM_TRIES, STREAM_TRIES_UNANSWERED
+    from mavadrc.flight.preflight import STREAM_TRIES, STREAM_TRIES_UNANSWERED
     srv, link = lossy_vehicle(link_seed=8)
     rule = link.drop_messages("COMMAND_LONG", direction="up",
                               command=M.MAV_CMD_SET_MESSAGE_INTERVAL)
@@ -249,7 +250,7 @@ def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypa
     identification's fit, made at once in lockstep, took over 5 s on a loaded machine) holds the
     samples back without any link being lost: the flight goes on and lands.  The timeout is
     shortened to 0.5 s and one step after its setpoint is made to take 1.5 s."""
-    import mavadrc.flight as F
+    import mavadrc.flight.flight as F
     monkeypatch.setattr(F, "LOCKSTEP_STALE_S", 0.5)
     slow = []
     history = Flight._descent_history
@@ -262,7 +263,7 @@ def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypa
 
     monkeypatch.setattr(Flight, "_descent_history", descent_history)
     summary, _ = fly(short_mission(tmp_path, hover=1), out=tmp_path, lockstep=True,
-                     figures=False, progress=False, stream=io.StringIO())
+                     progress=False, stream=io.StringIO())
     assert slow, "the slow step was not taken"
     assert summary["landed"], summary["aborted"]
     assert not summary["aborted"]
@@ -366,13 +367,13 @@ def test_a_second_companion_is_refused_and_the_first_flies_on(tmp_path):
         time.sleep(1.0)
         # the same port: refused at once, naming it
         with pytest.raises(LinkError, match=f"UDP port {link.companion_port} is already in use"):
-            fly(mission, connect=link.companion_url, out=tmp_path / "second", figures=False,
+            fly(mission, connect=link.companion_url, out=tmp_path / "second",
                 progress=False, stream=io.StringIO())
         # straight to the vehicle: it is armed and in the air, another controller owns it
         vehicle_port = srv.local_ports["offboard"]
         with pytest.raises(FlightError, match="another controller owns it"):
             fly(mission, connect=f"udpout:127.0.0.1:{vehicle_port}", out=tmp_path / "third",
-                figures=False, progress=False, stream=io.StringIO())
+                progress=False, stream=io.StringIO())
     finally:
         t.join(90)
         stop(srv, link)
@@ -398,10 +399,10 @@ def test_takeover_flies_a_vehicle_in_the_air_from_where_it_is(tmp_path):
         mission = short_mission(tmp_path, hover=2)
         with pytest.raises(FlightError, match="another controller owns it"):
             fly(mission, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
-                out=tmp_path / "refused", figures=False, progress=False, stream=io.StringIO())
+                out=tmp_path / "refused", progress=False, stream=io.StringIO())
         out = io.StringIO()
         summary, folder = fly(mission, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
-                              out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                              out=tmp_path / "runs", progress=False, stream=out,
                               takeover=True, timeout=60.0)
     finally:
         srv.stop()
@@ -420,10 +421,10 @@ def test_takeover_flies_a_vehicle_in_the_air_from_where_it_is(tmp_path):
 def test_signed_flight_against_the_signed_bundled_vehicle(tmp_path):
     key = tmp_path / "key.hex"
     key.write_text("ab" * 32 + "\n")
-    from mavadrc.fly import read_key
+    from mavadrc.cli.fly import read_key
 
     summary, folder = fly(load_mission("configs/missions/hover.yaml"), out=tmp_path,
-                          lockstep=True, figures=False, progress=False, stream=io.StringIO(),
+                          lockstep=True, progress=False, stream=io.StringIO(),
                           signing_key=read_key(key))
     assert summary["landed"] and summary["link"]["bad_signatures"] == 0
     log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
@@ -478,7 +479,7 @@ def test_two_vehicles_with_one_system_id_on_one_port_are_refused(tmp_path):
     try:
         with pytest.raises(FlightError, match="two vehicles speak as system 1") as e:
             fly(short_mission(tmp_path, hover=1), connect=f"udpin:127.0.0.1:{port}",
-                out=tmp_path / "runs", figures=False, progress=False, stream=out)
+                out=tmp_path / "runs", progress=False, stream=out)
         assert not a.vehicle.armed and not b.vehicle.armed
         assert a.autopilot.mode.name != "OFFBOARD" and b.autopilot.mode.name != "OFFBOARD"
     finally:
@@ -534,7 +535,7 @@ def test_a_second_vehicle_heard_in_flight_is_dropped_and_the_flight_goes_on(tmp_
     out = io.StringIO()
     try:
         summary, _ = fly(short_mission(tmp_path, hover=3), connect=f"udpin:127.0.0.1:{port}",
-                         out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                         out=tmp_path / "runs", progress=False, stream=out,
                          timeout=90.0)
     finally:
         t.join(40)

@@ -16,10 +16,10 @@ import pytest
 from pymavlink import mavutil
 from short_flights import FAST_PX4, SHORT, fly_through, lossy_vehicle, short_mission, stop
 
-from mavadrc.fly import fly
-from mavadrc.ground import TOUCHDOWN_TILT_DEG, landing_tilt
-from mavadrc.mission import load_mission
-from mavadrc.record import read_table
+from mavadrc.flight.fly import fly
+from mavadrc.flight.ground import TOUCHDOWN_TILT_DEG, landing_tilt
+from mavadrc.mission.config import load_mission
+from mavadrc.flight.record import read_table
 
 M = mavutil.mavlink
 
@@ -31,7 +31,7 @@ def test_ardupilot_arming_delay_gives_no_leap_at_lift_off(tmp_path):
     """ArduCopter keeps the motors at minimum for ARMING_DELAY_SEC (2 s) after arming; the
     flight waits it out and holds its observers on the ground, so nothing winds up."""
     mission = load_mission("configs/missions/ardupilot_hover.yaml")
-    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, progress=False,
                           stream=io.StringIO())
     assert summary["landed"] and summary["motor_delay_s"] == 2.0
     tab = read_table(folder / "controller.csv")
@@ -55,7 +55,7 @@ def _heavy_hover(tmp_path, kind, mass):
     path = tmp_path / f"heavy-{kind}-{mass}.yaml"
     path.write_text(HEAVY_HOVER.replace("KIND", kind).replace("MASS", str(mass)))
     out = io.StringIO()
-    summary, folder = fly(load_mission(path), out=tmp_path / kind, lockstep=True, figures=False,
+    summary, folder = fly(load_mission(path), out=tmp_path / kind, lockstep=True,
                           progress=False, stream=out)
     tab = read_table(folder / "controller.csv")
     return summary, tab, out.getvalue()
@@ -96,7 +96,7 @@ def test_a_height_estimate_drifting_up_lands_early_judged_at_contact_and_unscore
     ground is not scored as tracking error."""
     mission = short_mission(tmp_path, hover=4, extra="sim: {height_drift_mps: 0.03}\n")
     out = io.StringIO()
-    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, progress=False,
                           stream=out)
     assert summary["landed"], summary["aborted"]
     assert "before the land segment's end" in out.getvalue()
@@ -255,7 +255,7 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
     so that the refusal outlasts the 2 s before the handover on a busy machine too), and its land
     detector, as PX4's, refuses the disarm: 2 s into the refusal the companion hands the landing
     to AUTO.LAND, which disarms it, and the flight ends landed, with the summary saying how."""
-    from mavadrc.ground import DISARM_BOUND_S, LAND_HANDOVER_S
+    from mavadrc.flight.ground import DISARM_BOUND_S, LAND_HANDOVER_S
     srv, link = lossy_vehicle(link_seed=18, ground_climb_mps=1.0)
     modes = []
 
@@ -294,8 +294,8 @@ def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, mo
     for 12 s): the flight escalates, its failsafe watches the land mode to the disarm, and the
     summary says disarmed but not landed, with the reason.  Its many texts are kept in
     summary.json as the first and the last few (here 3 and 5), the rest counted."""
-    import mavadrc.flight as F
-    import mavadrc.ground as G
+    import mavadrc.flight.flight as F
+    import mavadrc.flight.ground as G
     monkeypatch.setattr(G, "DISARM_BOUND_S", 6.0)
     monkeypatch.setattr(F, "TEXTS_KEPT", (3, 5))
     srv, link = lossy_vehicle(link_seed=19, ground_climb_mps=2.0)
@@ -377,7 +377,7 @@ def test_a_vehicle_facing_south_turns_at_a_bounded_rate(tmp_path):
     path = tmp_path / "south.yaml"
     path.write_text(SHORT.replace("HOVER", "3").replace("wind: breeze_1ms\n", "")
                     + "sim: {heading_deg: 180}\n")
-    summary, folder = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False,
+    summary, folder = fly(load_mission(path), out=tmp_path, lockstep=True,
                           progress=False, stream=io.StringIO())
     assert summary["landed"]
     tab = read_table(folder / "controller.csv")
@@ -404,7 +404,7 @@ def test_ardupilot_angle_boost_is_divided_out(tmp_path, monkeypatch):
     """ArduCopter GUIDED multiplies the thrust of SET_ATTITUDE_TARGET by 1/cos(lean angle)
     (ATC_ANGLE_BOOST, default 1): sent as computed, the vehicle climbs in every turn.  PD (no
     observer to absorb it) on a circle leaning 18 deg shows it plainly."""
-    import mavadrc.sequence as S
+    import mavadrc.mavlink.sequence as S
 
     path = tmp_path / "circle.yaml"
     path.write_text("""name: tight circle
@@ -418,10 +418,10 @@ sim: {autopilot: ardupilot}
 safety: {set_guid_options: true}
 """)
     mission = load_mission(path)
-    compensated, a = fly(mission, out=tmp_path / "a", lockstep=True, figures=False,
+    compensated, a = fly(mission, out=tmp_path / "a", lockstep=True,
                          progress=False, stream=io.StringIO())
     monkeypatch.setattr(S.ArduPilotSequence, "thrust_factor", lambda self, flight: 1.0)
-    boosted, b = fly(mission, out=tmp_path / "b", lockstep=True, figures=False, progress=False,
+    boosted, b = fly(mission, out=tmp_path / "b", lockstep=True, progress=False,
                      stream=io.StringIO())
 
     def circling_z_error(folder):
@@ -444,11 +444,11 @@ def test_the_autopilot_saying_on_the_ground_mid_mission_ends_the_flight(tmp_path
     (after its IN_AIR) ends the flight with the autopilot's landing, and the summary says why
     and does not call it a flown mission.  (The companion's own reading of the ground carrying
     the vehicle, which comes first here, is put out of reach: its own test is below.)"""
-    import mavadrc.flight as F
+    import mavadrc.flight.flight as F
     monkeypatch.setattr(F, "CARRIED_SHARE", 10.0)
     mission = short_mission(tmp_path, hover=12, extra="sim: {height_drift_mps: 0.2}\n")
     out = io.StringIO()
-    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, progress=False,
                           stream=out)
     text = out.getvalue()
     assert "the autopilot says the vehicle is on the ground" in text, text
@@ -480,7 +480,7 @@ def test_the_ground_carrying_the_vehicle_mid_mission_ends_the_flight_unsaid(tmp_
     monkeypatch.setattr(A.Autopilot, "landed_state", never_on_ground)
     mission = short_mission(tmp_path, hover=12, extra="sim: {height_drift_mps: 0.2}\n")
     out = io.StringIO()
-    summary, folder = fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
+    summary, folder = fly(mission, out=tmp_path, lockstep=True, progress=False,
                           stream=out)
     text = out.getvalue()
     assert "the autopilot says the vehicle is on the ground" not in text
@@ -514,7 +514,7 @@ safety: {geofence: {north: [-20, 20], east: [-20, 20]}, altitude: {max: 5}LIMIT}
         path = tmp_path / f"{name}.yaml"
         path.write_text(text.replace("LIMIT", limit))
         out = io.StringIO()
-        runs[name] = fly(load_mission(path), out=tmp_path / name, lockstep=True, figures=False,
+        runs[name] = fly(load_mission(path), out=tmp_path / name, lockstep=True,
                          progress=False, stream=out) + (out.getvalue(),)
     summary, folder, said = runs["checked"]
     assert "tracking lost" in said and "hold, then land" in said, said

@@ -10,10 +10,10 @@ import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from mavadrc import compare as C  # noqa: E402
-from mavadrc.experiment import (experiment_from_text, load_experiment, run_inprocess,  # noqa: E402
+from mavadrc.study import compare as C  # noqa: E402
+from mavadrc.study.experiment import (experiment_from_text, load_experiment, run_inprocess,  # noqa: E402
                                 run_mavlink)
-from mavadrc.inprocess import L_DIST, L_POS, L_YAW  # noqa: E402
+from mavadrc.fast.inprocess import L_DIST, L_POS, L_YAW  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 from sitl_helpers import both_paths  # noqa: E402
 
@@ -181,7 +181,7 @@ def test_a_dask_cluster_gives_identical_records(tiny, tiny_serial):
 # --- the command and its folder -----------------------------------------------------------------
 
 def test_compare_writes_results_report_and_figures(tmp_path, capsys):
-    from mavadrc.cli import main
+    from mavadrc.cli.main import main
 
     assert main(["compare", str(TINY), "--out", str(tmp_path), "--seeds", "1", "-q"]) == 0
     doc = json.loads((tmp_path / "results.json").read_text())
@@ -234,7 +234,7 @@ def test_the_thesis_gains_are_judged_on_spirals_they_were_not_tuned_on():
     ADRC and LADRC meet it (max 0.026 / 0.023 m measured, bound 0.05)."""
     import fnmatch
 
-    from mavadrc.experiment import goal_covers
+    from mavadrc.study.experiment import goal_covers
 
     thesis = load_experiment(EXPERIMENTS / "thesis.yaml")
     tuned = [sc.name for sc in thesis.scenarios
@@ -253,8 +253,8 @@ def test_the_thesis_gains_are_judged_on_spirals_they_were_not_tuned_on():
 
 
 def test_tune_improves_on_its_start_and_writes_a_controller(tmp_path):
-    from mavadrc.mission import _read_controller
-    from mavadrc.tune import controller_yaml, tune
+    from mavadrc.mission.config import _read_controller
+    from mavadrc.study.tune import controller_yaml, tune
     from sim.yamlio import Section, load_yaml
 
     bad = TINY.read_text().replace("{name: PD, type: pd, wc: [2.5, 2.5, 3.0]}",
@@ -276,7 +276,7 @@ def test_tune_shows_its_bounds_takes_new_ones_and_warns_on_an_edge(tmp_path):
     very scenarios tuned on is flagged too."""
     import io
 
-    from mavadrc.tune import controller_yaml, on_bounds, parse_bounds, search_space, tune
+    from mavadrc.study.tune import controller_yaml, on_bounds, parse_bounds, search_space, tune
 
     assert parse_bounds(["wo_ratio=2:10"]) == {"wo_ratio": (2.0, 10.0)}
     for bad in (["wo_ratio=2"], ["wo_ratio:2:3"], ["x=a:b"]):
@@ -316,7 +316,7 @@ def test_tune_never_hands_back_gains_worse_than_its_start(tmp_path):
     start: it says so and writes the starting gains, not its worse best."""
     import io
 
-    from mavadrc.tune import controller_yaml, tune
+    from mavadrc.study.tune import controller_yaml, tune
 
     out = io.StringIO()
     res = tune(TINY, "pd", scenarios="gusty*", seeds=1, maxiter=1, popsize=2, workers=1,

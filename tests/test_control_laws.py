@@ -482,8 +482,8 @@ def test_the_adrc_wo_shorthand_puts_the_nlesos_linearised_poles_at_minus_wo(rate
     forward-Euler image 1 - wo h, identified from the recursion itself by finite differences).
     Without fal's scaling the same wo put them at |z| = 1.154 at 100 Hz (the thesis gains:
     unstable)."""
-    from mavadrc.flight import make_controller
-    from mavadrc.mission import ControllerSpec
+    from mavadrc.design.gains import make_controller
+    from mavadrc.mission.config import ControllerSpec
 
     spec = ControllerSpec(kind="adrc", rate_hz=rate_hz,
                           gains={"wc": (4.0,) * 3, "wo": (wo,) * 3, "delta": (delta,) * 3})

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from mavadrc.console import Console, Guarded, Terminated, interrupt_reason
-from mavadrc.fly import interrupt_status
+from mavadrc.flight.console import Console, Guarded, Terminated, interrupt_reason
+from mavadrc.flight.fly import interrupt_status
 from sitl_helpers import wait_rows
 
 MISSIONS = Path(__file__).resolve().parent.parent / "configs" / "missions"
@@ -163,9 +163,9 @@ def test_a_disk_that_fills_mid_flight_stops_the_record_not_the_flight(tmp_path, 
     import csv
     import io
 
-    import mavadrc.record as R
-    from mavadrc.fly import fly
-    from mavadrc.mission import load_mission
+    import mavadrc.flight.record as R
+    from mavadrc.flight.fly import fly
+    from mavadrc.mission.config import load_mission
 
     records = []
     init = R.FlightRecord.__init__
@@ -191,7 +191,7 @@ def test_a_disk_that_fills_mid_flight_stops_the_record_not_the_flight(tmp_path, 
     monkeypatch.setattr(R.TableWriter, "row", filling)
     out = io.StringIO()
     summary, _ = fly(load_mission(MISSIONS / "hover.yaml"), out=tmp_path, lockstep=True,
-                     figures=False, progress=False, stream=out)
+                     progress=False, stream=out)
     said = out.getvalue()
     assert summary["landed"] and summary["disarmed"] and summary["aborted"] == []
     assert "No space left on device" in summary["record_lost"]
@@ -207,9 +207,9 @@ def _interrupted_ardupilot_flight(tmp_path, monkeypatch, at_s=4.0):
     ``at_s`` s into its mission: the failsafe holds, then lands."""
     import io
 
-    from mavadrc.flight import Flight
-    from mavadrc.fly import fly
-    from mavadrc.mission import load_mission
+    from mavadrc.flight.flight import Flight
+    from mavadrc.flight.fly import fly
+    from mavadrc.mission.config import load_mission
 
     step = Flight._mission_step
     fired = []
@@ -227,7 +227,7 @@ def _interrupted_ardupilot_flight(tmp_path, monkeypatch, at_s=4.0):
     out = io.StringIO()
     # in real time: in lockstep the vehicle's clock waits on the companion, which sends nothing
     # while the autopilot holds, so a hold would take no simulated time at all
-    summary, folder = fly(load_mission(path), out=tmp_path, figures=False, progress=False,
+    summary, folder = fly(load_mission(path), out=tmp_path, progress=False,
                           stream=out)
     assert fired
     return summary, folder, out.getvalue()
@@ -238,7 +238,7 @@ def test_an_ardupilot_failsafe_holds_in_brake_and_lands_at_its_land_speed(tmp_pa
     a vehicle with no pilot (or the stick down) sinks at the pilot's full rate; flown on
     ArduCopter SITL, it met the ground from 3 m at 2.49 m/s. The hold is BRAKE: the vehicle
     stays where it was until LAND brings it down at LAND_SPEED (0.5 m/s)."""
-    from mavadrc.record import read_table
+    from mavadrc.flight.record import read_table
 
     summary, folder, said = _interrupted_ardupilot_flight(tmp_path, monkeypatch)
     assert summary["aborted"] == ["interrupted by the user"] and summary["disarmed"], said
@@ -251,7 +251,7 @@ def test_an_ardupilot_failsafe_holds_in_brake_and_lands_at_its_land_speed(tmp_pa
 def test_a_hold_the_autopilot_refuses_is_skipped_for_its_land(tmp_path, monkeypatch):
     """ArduCopter refuses BRAKE without a position estimate (GUIDED_NOGPS flown indoors): the
     failsafe lands at once instead of asking again until its landing bound runs out."""
-    import mavadrc.sequence as S
+    import mavadrc.mavlink.sequence as S
 
     monkeypatch.setattr(S, "AP_BRAKE", 99)  # a mode the vehicle does not have: refused
     summary, folder, said = _interrupted_ardupilot_flight(tmp_path, monkeypatch)
@@ -263,7 +263,7 @@ def test_a_companion_killed_outright_takes_its_forked_vehicle_with_it(tmp_path):
     """SIGKILL leaves a companion no say; the bundled vehicle it forked (which ignores Ctrl-C
     and hangups, to be flown down) must not run on for ever with nobody to fly it."""
     psutil = pytest.importorskip("psutil")
-    from mavadrc.embedded import can_fork
+    from mavadrc.flight.embedded import can_fork
 
     if not sys.platform.startswith("linux"):
         pytest.skip("the forked vehicle and its parent-death signal are Linux's")

@@ -20,12 +20,13 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from mavadrc.control.position import PositionController  # noqa: E402
-from mavadrc.experiment import experiment_from_text  # noqa: E402
-from mavadrc.flight import resolve_gains  # noqa: E402
-from mavadrc.identify import doublets  # noqa: E402
-from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess  # noqa: E402
-from mavadrc.margin import delay_margin  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.study.experiment import experiment_from_text  # noqa: E402
+from mavadrc.flight.flight import resolve_gains  # noqa: E402
+from mavadrc.mission.identification import doublets  # noqa: E402
+from mavadrc.fast.inprocess import L_POS, L_REF, L_T  # noqa: E402
+from mavadrc.fast.fly import fly_inprocess  # noqa: E402
+from mavadrc.design.margin import delay_margin  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 from sitl_helpers import both_paths  # noqa: E402
 
@@ -77,7 +78,8 @@ def figure_eight(tmp_path_factory):
 def test_the_drag_is_identified_and_flown(figure_eight):
     """The identified drag (PX4 SIH: SIH_KDV 1 N/(m/s) on 1 kg) is what the flight models;
     ``drag: 0`` keeps none."""
-    from mavadrc.identify import identify_inprocess, observer_drag, observer_lag
+    from mavadrc.design.identify import observer_drag, observer_lag
+    from mavadrc.fast.identify import identify_inprocess
     m = figure_eight["drag"][1]
     rec = identify_inprocess(m, 0)
     drag = observer_drag(rec)
@@ -231,8 +233,8 @@ def test_the_mission_gains_keep_their_margin_on_a_slower_vehicle():
     (horizontally) until they keep 32 % again, about half; x500_gusts' wc 2 keeps 81 % on the
     x500 and still 36 % (over MISSION_MARGIN_SHARE) at 0.25 s: as given.  Within the
     identification's 15 % nothing changes, and a faster vehicle never makes them faster."""
-    from mavadrc.flight import MISSION_MARGIN_SHARE, make_controller
-    from mavadrc.identify import design_lag
+    from mavadrc.design.gains import MISSION_MARGIN_SHARE, make_controller
+    from mavadrc.fast.identify import design_lag
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
     design = design_lag(m)
     assert design[0] == pytest.approx(0.125, rel=0.05)
@@ -269,7 +271,8 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
     (x500_gusts' wc 2: 140 ms) fly as given, and on a vehicle slower than the design the larger
     need of the two holds.  A rule of flight: resolved without it (the fast path, which
     studies the gains as given) wc 4 stays wc 4."""
-    from mavadrc.flight import MISSION_MARGIN_FLOOR, make_controller, slower_than
+    from mavadrc.flight.flight import MISSION_MARGIN_FLOOR, slower_than
+    from mavadrc.design.gains import make_controller
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
     lag = (0.263, 0.263, 0.052)
 
@@ -312,7 +315,7 @@ def test_a_mission_named_for_the_vehicle_flown_no_longer_limit_cycles(tmp_path, 
     0.96 Hz, a regular limit cycle (with the breeze, +-24.9 deg), while the console only said
     "no delay margin".  Held to the floor it flies wc 2.3, and the console and summary.json
     say why."""
-    from mavadrc.cli import main
+    from mavadrc.cli.main import main
     text = Path("configs/missions/thesis_spiral_wind.yaml").read_text()
     text = text.replace("vehicle: crazyflie\n", "vehicle: px4_sih_quad\n")
     text = re.sub(r"\nwind: .*", "\nwind: calm", text)
@@ -343,9 +346,10 @@ def test_slowed_gains_keep_their_observers_and_answer_the_wander_less():
     SIH's estimate wanders most; flown
     in process on the bundled PX4 SIH quad with PX4 SIH's own recorded estimate error, the
     spiral's largest error after settling went from 0.107-0.122 m to 0.082-0.100 m."""
-    from mavadrc.flight import make_controller, scale_to_vehicle
-    from mavadrc.identify import ORDER, design_lag
-    from mavadrc.margin import noise_response
+    from mavadrc.design.gains import make_controller, scale_to_vehicle
+    from mavadrc.design.identify import ORDER
+    from mavadrc.fast.identify import design_lag
+    from mavadrc.design.margin import noise_response
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
     dead, tau = 0.065, 0.089
     lag = dead + 2.146 * tau
@@ -382,7 +386,7 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     (chosen for the file's 0.125 s) are slowed by the ratio, said on the console and in
     summary.json, and the spiral flies without a limit cycle: the summary's warning of one,
     predicted from the margin, says it was not seen."""
-    from mavadrc.cli import main
+    from mavadrc.cli.main import main
     text = Path("configs/missions/thesis_spiral_wind.yaml").read_text()
     text = text.replace("sim: {seed: 1}", "sim: {seed: 1, attitude_bandwidth_scale: 0.45}")
     path = tmp_path / "slow.yaml"
@@ -416,11 +420,12 @@ def test_the_design_lag_is_found_before_anything_flies(tmp_path, monkeypatch, ca
     which compiles the simulation's kernels on a first run (11-25 s here).  Found after the
     doublets, that held the controller's switch: on PX4 SIH the safe gains flew the figure
     eight 0.8 m off for 17 s, and in lockstep the telemetry timeout ended the flight.  It is
-    found before the link is opened; here a design lag that takes 3 s."""
+    found before the vehicle is started (by the command, and handed to the flight); here a
+    design lag that takes 3 s."""
     import time
 
-    import mavadrc.flight as F
-    from mavadrc.cli import main
+    import mavadrc.fast.identify as F
+    from mavadrc.cli.main import main
     real, calls = F.design_lag, []
 
     def slow(mission):
@@ -454,7 +459,7 @@ def test_taking_over_mid_motion_does_not_feed_the_drag_forward_twice():
     the safe one's, not one drag's worth more (on PX4 SIH the command went from -1.2 to -3
     m/s^2 at the takeover and the vehicle fell 0.17 m off)."""
     from mavadrc.control import PositionController
-    from mavadrc.flight import carry_over
+    from mavadrc.flight.flight import carry_over
     v, drag, h = -0.75, 1.0, 0.01
     safe = PositionController("ladrc", h=h, hover_thrust=0.5, wc=1.0, wo=4.0)
     x, ref = np.array([0.0, 0.0, -3.0]), np.array([0.0, 0.0, -3.0])

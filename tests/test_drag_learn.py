@@ -1,5 +1,5 @@
 """The horizontal drag learnt along the mission from the observers' disturbance estimate
-(:mod:`mavadrc.learn`, ``drag_learn``).
+(:mod:`mavadrc.control.learn`, ``drag_learn``).
 
 On PX4 SIH (SIH_KDV 1 N/(m/s) on 1 kg) the doublets' drag scattered over 0.41-1.32 /s in 20
 flights, and the figure eight's error followed it; the slope of the observers' total disturbance
@@ -17,9 +17,9 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from mavadrc.control.position import PositionController  # noqa: E402
-from mavadrc.flight import resolve_gains  # noqa: E402
-from mavadrc.learn import MIN_SECONDS, RATE_PER_S2, DragLearner  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.flight.flight import resolve_gains  # noqa: E402
+from mavadrc.control.learn import MIN_SECONDS, RATE_PER_S2, DragLearner  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 
 
@@ -150,7 +150,7 @@ def test_the_drag_is_learnt_wherever_it_is_identified(tmp_path):
 
 
 def _fly(tmp_path, controller, sub):
-    from mavadrc.cli import main
+    from mavadrc.cli.main import main
     out = tmp_path / sub
     out.mkdir()
     path = _mission(out, controller)
@@ -194,9 +194,9 @@ def test_the_lag_is_fitted_again_with_the_drag_learnt_and_flown_without_a_jump(t
     lockstep: once the drag has been learnt REFINE_AFTER_S, the doublets are fitted again with it
     known (there 0.260 s for the free fit's 0.271; any change flown here) and the controller made
     with it takes over mid-figure where the other was: no jump in the error."""
-    import mavadrc.flight as F
-    from mavadrc.cli import main
-    from mavadrc.record import read_table
+    import mavadrc.flight.flight as F
+    from mavadrc.cli.main import main
+    from mavadrc.flight.record import read_table
     monkeypatch.setattr(F, "REFINE_TOLERANCE", 0.0)
     text = Path("configs/missions/x500_gusts.yaml").read_text()
     text = text.replace("vehicle: x500\n", "vehicle: px4_sih_quad\n")

@@ -1,4 +1,4 @@
-"""Figures from a synthetic flight record and a synthetic .tlog (mavadrc.figures)."""
+"""Figures from a synthetic flight record and a synthetic .tlog (mavadrc.study.figures)."""
 
 import json
 import math
@@ -12,8 +12,10 @@ from matplotlib.image import imread  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from mavadrc import figures, record  # noqa: E402
-from mavadrc.truth import TRUTH_COLUMNS  # noqa: E402
+from mavadrc.study import figures
+
+from mavadrc.flight import record  # noqa: E402
+from mavadrc.flight.truth import TRUTH_COLUMNS  # noqa: E402
 
 N = 400
 DT = 0.02
@@ -346,8 +348,8 @@ def test_the_path_figure_shows_the_reference_over_the_vehicle_and_its_labels_apa
 def test_a_scenario_figure_names_each_controller_once_outside_the_panels(monkeypatch, tmp_path):
     import matplotlib.pyplot as plt
 
-    from mavadrc import report
-    from mavadrc.inprocess import L_DIST, L_POS, L_REF, L_REF_ACC, L_T, L_WRENCH, L_Z3
+    from mavadrc.study import report
+    from mavadrc.fast.inprocess import L_DIST, L_POS, L_REF, L_REF_ACC, L_T, L_WRENCH, L_Z3
 
     t = np.arange(0.0, 12.0, 0.01)
     runs = []

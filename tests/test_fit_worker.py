@@ -1,6 +1,6 @@
 """What stopped a real-time flight's loop: the input model's fit, now in its own process
-(mavadrc.fitworker); the heap, now frozen for the loop (mavadrc.flight._freeze_heap); a kernel
-compiled at the mission's first sample, now run before the flight (mavadrc.flight._run_once).
+(mavadrc.design.fitworker); the heap, now frozen for the loop (mavadrc.flight.flight._freeze_heap); a kernel
+compiled at the mission's first sample, now run before the flight (mavadrc.flight.flight._run_once).
 
 On PX4 SIH the fit made in a thread beside the loop held the interpreter, and the samples' age
 rose to 0.2-0.4 s as it ended, a moment before the spiral began; a full collection of the heap
@@ -16,10 +16,12 @@ import os
 import numpy as np
 import pytest
 
-from mavadrc import identify as I
-from mavadrc.fitworker import FitWorker
-from mavadrc.flight import fit_and_make
-from mavadrc.mission import load_mission
+from mavadrc.design import identify as I
+
+from mavadrc.fast import identify as FI
+from mavadrc.design.fitworker import FitWorker
+from mavadrc.flight.flight import fit_and_make
+from mavadrc.mission.config import load_mission
 
 
 @pytest.fixture
@@ -57,7 +59,7 @@ def test_the_worker_never_runs_the_callers_script_again(tmp_path):
     runs = tmp_path / "runs.txt"
     script = tmp_path / "script.py"
     script.write_text(f"""import os
-from mavadrc.fitworker import FitWorker
+from mavadrc.design.fitworker import FitWorker
 with open({str(runs)!r}, "a") as f:
     f.write("run\\n")
 w = FitWorker()
@@ -76,8 +78,8 @@ def test_the_controller_made_in_the_process_is_the_one_made_here(worker):
     LADRC made with the model: in the worker and here, the same fit, gains, margins and
     controller (its next command from the same samples)."""
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
-    d, windows = I.samples_inprocess(I.identification_mission(m, calm=True), seed=0)
-    job = (d, windows, "in a test", m.controller, "ladrc", 100.0, 0.47, I.design_lag(m))
+    d, windows = FI.samples_inprocess(FI.identification_mission(m, calm=True), seed=0)
+    job = (d, windows, "in a test", m.controller, "ladrc", 100.0, 0.47, FI.design_lag(m))
     rec_h, ctrl_h, gains_h, margin_h = fit_and_make(*job)
     rec_p, ctrl_p, gains_p, margin_p = worker.call(fit_and_make, *job)
     assert worker.where == "process"
@@ -103,8 +105,8 @@ def test_the_controller_made_in_the_process_is_the_one_made_here(worker):
 def test_a_flight_freezes_the_heap_for_its_loop_and_unfreezes_it_after(tmp_path, monkeypatch):
     """A lockstep hover over MAVLink: the loop runs with the heap frozen (so a collection
     walks only what the flight made), and the flight leaves it unfrozen."""
-    import mavadrc.flight as F
-    from mavadrc.cli import main
+    import mavadrc.flight.flight as F
+    from mavadrc.cli.main import main
 
     frozen = []
     loop = F.Flight._loop
@@ -122,7 +124,7 @@ def test_a_flight_freezes_the_heap_for_its_loop_and_unfreezes_it_after(tmp_path,
 
 
 def test_a_heap_the_caller_froze_is_left_to_the_caller():
-    from mavadrc.flight import _freeze_heap
+    from mavadrc.flight.flight import _freeze_heap
 
     gc.freeze()
     try:
@@ -147,8 +149,8 @@ def test_a_controller_built_for_flight_has_every_kernel_the_record_reads_ready()
     import sys
 
     code = ("from mavadrc.control import kernels as K\n"
-            "from mavadrc.flight import built, _run_once\n"
-            "from mavadrc.mission import ControllerSpec\n"
+            "from mavadrc.flight.flight import built, _run_once\n"
+            "from mavadrc.mission.config import ControllerSpec\n"
             "ready = lambda: bool(getattr(K.td_output, 'signatures', [True]))\n"
             "before = ready()\n"
             "ctrl, _ = built(ControllerSpec(kind='adrc', rate_hz=100.0), 0.5, 'adrc', 100.0,"

@@ -17,13 +17,14 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from mavadrc.embedded import free_udp_port  # noqa: E402
-from mavadrc.flight import Flight, FlightError  # noqa: E402
-from mavadrc.fly import fly  # noqa: E402
-from mavadrc.link import Link, LinkError, parse_url  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
-from mavadrc.sequence import PX4_OFFBOARD  # noqa: E402
-from mavadrc.record import FlightRecord, read_table  # noqa: E402
+from mavadrc.flight.embedded import free_udp_port  # noqa: E402
+from mavadrc.flight.flight import Flight, FlightError  # noqa: E402
+from mavadrc.fast.identify import flight_design_lag  # noqa: E402
+from mavadrc.flight.fly import fly  # noqa: E402
+from mavadrc.mavlink.link import Link, LinkError, parse_url  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
+from mavadrc.mavlink.sequence import PX4_OFFBOARD  # noqa: E402
+from mavadrc.flight.record import FlightRecord, read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 from sitl_helpers import wait_rows  # noqa: E402
 
@@ -32,8 +33,9 @@ M = mavutil.mavlink
 
 
 def fly_quiet(mission, tmp_path, **kw):
-    return fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False,
-               stream=io.StringIO(), **kw)
+    """As ``mavadrc fly --lockstep`` flies it: the design lag found first."""
+    return fly(mission, out=tmp_path, lockstep=True, progress=False, stream=io.StringIO(),
+               design_lag=flight_design_lag(mission, kw.get("kind")), **kw)
 
 
 # --- error bounds per controller and mission ----------------------------------------------------
@@ -88,7 +90,7 @@ def test_adrc_rejects_the_wind_better_than_pd(shipped_flight):
 def test_lockstep_flights_are_identical_for_the_same_seed(tmp_path, monkeypatch):
     """Turbulence included: the controller table of two flights matches byte for byte, whether
     the vehicle was forked from this process or started as ``python -m sim``."""
-    import mavadrc.embedded as E
+    import mavadrc.flight.embedded as E
 
     path = tmp_path / "gusty.yaml"
     path.write_text((MISSIONS / "hover.yaml").read_text() + "wind: moderate_gusts\nsim: {seed: 5}\n")
@@ -141,7 +143,7 @@ def test_the_hover_thrust_learnt_in_flight_is_recorded_and_said(tmp_path):
     """Over MAVLink (lockstep), the flight's summary keeps the hover thrust learnt beside the one
     told, and the console says both; told right (the bundled Crazyflie), they agree within 2 %
     (0.468 against 0.473 measured)."""
-    from mavadrc.flight import print_table
+    from mavadrc.flight.flight import print_table
 
     summary, _ = fly_quiet(load_mission(MISSIONS / "hover.yaml"), tmp_path)
     # PX4's land detector agreeing at once: disarmed by the companion's command, never refused
@@ -256,7 +258,7 @@ def test_mode_or_arming_refused_stops_the_flight_with_the_vehicles_answer(cmd, w
     try:
         with pytest.raises(FlightError, match=words):
             fly(load_mission(MISSIONS / "hover.yaml"), connect=f"udpin:127.0.0.1:{port}",
-                out=tmp_path, figures=False, progress=False, stream=io.StringIO())
+                out=tmp_path, progress=False, stream=io.StringIO())
     finally:
         fake.running = False
         fake.join(2)
@@ -287,7 +289,7 @@ def test_link_lost_mid_flight_engages_the_failsafe_and_the_record_is_complete(tm
 
     threading.Thread(target=killer, daemon=True).start()
     try:
-        summary, folder = fly(mission, connect=f"udpin:127.0.0.1:{port}", out=out, figures=False,
+        summary, folder = fly(mission, connect=f"udpin:127.0.0.1:{port}", out=out,
                               progress=False, stream=io.StringIO())
     finally:
         vehicle.kill()
@@ -404,7 +406,7 @@ def test_shipped_missions_load():
 
 
 def test_the_vehicle_is_forked_only_from_a_single_threaded_process():
-    import mavadrc.embedded as E
+    import mavadrc.flight.embedded as E
 
     if sys.platform != "linux":
         pytest.skip("the fork start is Linux only")

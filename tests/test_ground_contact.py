@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mavadrc import trajectories as T
-from mavadrc.ground import GroundPhases
-from mavadrc.mission import FINAL_HEIGHT, FINAL_SPEED
+from mavadrc.mission import trajectories as T
+from mavadrc.flight.ground import GroundPhases
+from mavadrc.mission.config import FINAL_HEIGHT, FINAL_SPEED
 
 H = 0.01
 DATA = Path(__file__).parent / "data"
@@ -141,7 +141,7 @@ def test_on_the_ground_with_the_velocity_estimate_reading_a_descent_is_contact()
 def _recorded(rows, kind="ladrc"):
     """A Recorder fed the rows (t, reference and position north/east/down, z3) as scored steps,
     as a flight feeds it (its table a list)."""
-    from mavadrc.record import Recorder
+    from mavadrc.flight.record import Recorder
     table = types.SimpleNamespace(rows=[])
     table.row = table.rows.append
     rec = Recorder(types.SimpleNamespace(table=table), kind)
@@ -168,7 +168,7 @@ def test_the_steps_on_the_ground_before_the_land_segments_end_are_not_scored():
     reported max error, where its flight had kept 0.08.  The ground holding the vehicle up (the
     vertical disturbance estimate) from the contact on marks where the scoring ends."""
     from mavadrc.control.geometry import GRAVITY
-    from mavadrc.ground import CONTACT_HELD_SHARE, GAP_GROWTH
+    from mavadrc.flight.ground import CONTACT_HELD_SHARE, GAP_GROWTH
     rows = np.loadtxt(DATA / "px4_sih_contact_in_land.txt")
     contact = 75.20  # SIH's truth: still from here
     rec = _recorded(rows)

@@ -9,10 +9,14 @@ import numpy as np
 import pytest
 import yaml
 
-from mavadrc import identify as I
-from mavadrc.cli import main
-from mavadrc.mission import load_mission
-from mavadrc.trajectories import Doublets
+from mavadrc.design import identify as I
+
+from mavadrc.fast import identify as FI
+
+from mavadrc.mission import identification as MI
+from mavadrc.cli.main import main
+from mavadrc.mission.config import flight_mission, load_mission
+from mavadrc.mission.trajectories import Doublets
 from sim.vehicle import response_time_constants
 
 
@@ -49,8 +53,8 @@ def plant_response(u_of_t, tau, d, *, order=2, drag=0.3, gust=None, h=0.01, seco
 def _doublets_from(start):
     """The identification's north doublets (2 m/s^2) from ``start`` s on, and the command they
     give as a function of time."""
-    ref = Doublets((0, 0, 0), amplitude=2.0, half_period=I.HALF_PERIOD, repeats=I.REPEATS,
-                   rest=I.REST_S, axes=(0,))
+    ref = Doublets((0, 0, 0), amplitude=2.0, half_period=MI.HALF_PERIOD, repeats=MI.REPEATS,
+                   rest=MI.REST_S, axes=(0,))
 
     def u_of_t(t):
         return float(ref.sample(t - start).acc[0]) if t >= start else 0.0
@@ -161,8 +165,8 @@ def test_bundled_vehicles_are_identified_within_15_percent(name):
     or within one 100 Hz control period where the response is faster than that (the x500's
     motors: 14 ms)."""
     m = _mission(name, 250)
-    I._CACHE.clear()
-    rec = I.identify_inprocess(m)
+    FI._CACHE.clear()
+    rec = FI.identify_inprocess(m)
     xy, z = response_time_constants(m.vehicle, m.attitude_controller)
     got = rec["input_lag"]
     for lag, true in ((got[0], xy), (got[1], xy), (got[2], z)):
@@ -175,11 +179,11 @@ def test_in_process_the_doublets_are_flown_on_the_hover_thrust_told():
     (the vehicle its own file, told its own hover thrust) the identification's controller keeps
     the figure told; in flight it learns it in the takeoff and pauses over the identify
     segment (the next test); the mission's controller, after the switch, learns on."""
-    from mavadrc.flight import identification_gains, resolve_gains
-    from mavadrc.inprocess import fly_inprocess
+    from mavadrc.flight.flight import identification_gains, resolve_gains
+    from mavadrc.fast.fly import fly_inprocess
 
     m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
-    run = fly_inprocess(I.identification_mission(m), kind="ladrc", seed=0)
+    run = fly_inprocess(FI.identification_mission(m), kind="ladrc", seed=0)
     assert run.hover_thrust_learnt is None
     assert identification_gains(learn=False)["thrust_estimate"] == 0.0
     assert identification_gains()["thrust_estimate"] > 0.0
@@ -210,8 +214,8 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     from the identify segment's start to its end, and carried into the mission's controller."""
     import io
 
-    from mavadrc.flight import Flight
-    from mavadrc.fly import fly
+    from mavadrc.flight.flight import Flight
+    from mavadrc.flight.fly import fly
 
     seen = []
     pause = Flight._pause_learning
@@ -224,8 +228,9 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     monkeypatch.setattr(Flight, "_pause_learning", spy)
     path = tmp_path / "heavy.yaml"
     path.write_text(HEAVY)
-    summary, _ = fly(load_mission(path), lockstep=True, out=tmp_path, figures=False,
-                     progress=False, stream=io.StringIO())
+    m = load_mission(path)
+    summary, _ = fly(m, lockstep=True, out=tmp_path, progress=False, stream=io.StringIO(),
+                     design_lag=FI.flight_design_lag(m))
     axes = summary["identification"]["axes"]
     told = summary["hover_thrust"]
     assert summary["landed"]
@@ -255,9 +260,9 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
 
 def test_sample_latency_is_identified_as_dead_time_within_one_sample():
     m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
-    I._CACHE.clear()
-    base = I.identify_inprocess(m)["input_lag"]
-    late = I.identify_inprocess(dataclasses.replace(m, sensor_latency_s=0.04))["input_lag"]
+    FI._CACHE.clear()
+    base = FI.identify_inprocess(m)["input_lag"]
+    late = FI.identify_inprocess(dataclasses.replace(m, sensor_latency_s=0.04))["input_lag"]
     for a, b in zip(base, late):
         assert abs((b - a) - 0.04) <= 1.0 / 250, (base, late)
 
@@ -265,15 +270,16 @@ def test_sample_latency_is_identified_as_dead_time_within_one_sample():
 def test_in_turbulence_the_drifting_disturbance_keeps_the_fit(monkeypatch):
     """x500 in moderate Dryden turbulence with a 4 m/s mean wind: four seeds within 10 % of the
     calm figure."""
-    from mavadrc.inprocess import L_ACC, L_T, L_VEL, fly_inprocess
+    from mavadrc.fast.inprocess import L_ACC, L_T, L_VEL
+    from mavadrc.fast.fly import fly_inprocess
     m = _mission("configs/missions/x500_gusts.yaml", 100)
-    I._CACHE.clear()
-    calm = I.identify_inprocess(m)["input_lag"]
+    FI._CACHE.clear()
+    calm = FI.identify_inprocess(m)["input_lag"]
     for seed in range(4):
-        r = fly_inprocess(I.identification_mission(m, calm=False), seed=seed)
+        r = fly_inprocess(FI.identification_mission(m, calm=False), seed=seed)
         L = r.log
         rec = I.fit(L[:, L_T], L[:, L_ACC:L_ACC + 3], L[:, L_VEL:L_VEL + 3],
-                    I.windows_in(r.phases))
+                    MI.windows_in(r.phases))
         assert rec["input_lag"][:2] == pytest.approx(calm[:2], rel=0.10), (seed, rec)
 
 
@@ -283,7 +289,7 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     written is a controller section a mission takes, and the doublets' tilt is not reported as
     a limit cycle.  What the fit imports is loaded before the flight flies (in real time the
     fit runs in a thread beside the loop)."""
-    import mavadrc.preflight as P
+    import mavadrc.flight.preflight as P
     loaded = []
     monkeypatch.setattr(P, "load_fitting", lambda: loaded.append(True) or I.load_fitting())
     out = tmp_path / "model.yaml"
@@ -305,9 +311,9 @@ def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsy
     assert summary["identification"]["switched_at_speed_mps"] == 0.0
     # how long the fit took, and with the controller and its margins made
     assert 0.0 < summary["identification"]["fit_s"] <= summary["identification"]["made_in_s"]
-    _, phases = I.flight_mission(load_mission("configs/missions/hover.yaml")).build_trajectory()
+    _, phases = flight_mission(load_mission("configs/missions/hover.yaml")).build_trajectory()
     land = dict((name, t) for t, name in phases)["land"]
-    assert summary["identification"]["switched_at_s"] == pytest.approx(land - I.HANDOVER_S,
+    assert summary["identification"]["switched_at_s"] == pytest.approx(land - MI.HANDOVER_S,
                                                                       abs=0.03)
     osc = summary.get("attitude_oscillation")
     assert osc is None or osc["amplitude_deg"] < 3.0
@@ -321,7 +327,7 @@ def test_a_flight_starts_without_scipys_fitting_and_loads_it_only_to_identify():
     loaded from numba's cache by it, not by the fit (a thread beside the loop)."""
     import subprocess
     import sys
-    code = ("import sys, mavadrc.fly\n"
+    code = ("import sys, mavadrc.flight.fly\n"
             "from mavadrc import identify as I\n"
             "seen = lambda: [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')]\n"
             "before = seen()\n"
@@ -339,9 +345,10 @@ def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
     margin of 3/4 of that lag: the bundled vehicles' response (0.125 s) keeps most of the fast
     defaults, PX4 SIH's (0.25 s) gets about wc 1.1 (wc 2.5 swung +-13 deg there), and gains the
     mission gives are flown as given."""
-    from mavadrc.flight import MARGIN_SHARE, make_controller, resolve_gains
-    from mavadrc.margin import delay_margin
-    from mavadrc.mission import ControllerSpec
+    from mavadrc.flight.flight import MARGIN_SHARE, resolve_gains
+    from mavadrc.design.gains import make_controller
+    from mavadrc.design.margin import delay_margin
+    from mavadrc.mission.config import ControllerSpec
 
     def gains(lag, **given):
         spec = ControllerSpec(kind="ladrc", rate_hz=100.0, gains={"input_lag": "auto", **given})
@@ -365,12 +372,13 @@ def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
 def test_the_fast_path_flies_the_gains_the_flight_resolves_after_identifying():
     """input_lag: auto without wc/wo: the fast path (and so compare --via mavlink) flies the
     defaults slowed to keep their margin, as the flight does once it has identified."""
-    from mavadrc.flight import resolve_gains
-    from mavadrc.identify import observer_lag, with_identified
+    from mavadrc.flight.flight import resolve_gains
+    from mavadrc.design.identify import observer_lag
+    from mavadrc.fast.identify import with_identified
     m = _mission("configs/missions/hover.yaml", 100)
     spec = dataclasses.replace(m.controller, gains={"input_lag": "auto"})
     m = dataclasses.replace(m, controller=spec)
-    I._CACHE.clear()
+    FI._CACHE.clear()
     flown = with_identified(m, seed=0)
     expect = resolve_gains(spec, identified=observer_lag(flown.identification, spec))
     got = flown.controller.gains
@@ -407,10 +415,10 @@ def test_the_drag_leg_cruises_and_ends_where_it_began():
     speed (no acceleration) through both cruise windows, 2.8 m out at most, back at rest where
     it began, and held there while the fit is made (what is read ends before: ``fit_end``); a
     leg speed of 0 flies the doublets alone (12.6 s)."""
-    d = I.doublets((1.0, 2.0, -3.0))
-    assert d.fit_end == pytest.approx(12.6 + 4 * I.LEG_RAMP_S + 2 * I.LEG_CRUISE_S + I.REST_S)
-    assert d.duration == pytest.approx(d.fit_end + I.HANDOVER_S)
-    assert I.doublets((0, 0, 0), leg_speed=0.0).fit_end == pytest.approx(12.6)
+    d = MI.doublets((1.0, 2.0, -3.0))
+    assert d.fit_end == pytest.approx(12.6 + 4 * MI.LEG_RAMP_S + 2 * MI.LEG_CRUISE_S + MI.REST_S)
+    assert d.duration == pytest.approx(d.fit_end + MI.HANDOVER_S)
+    assert MI.doublets((0, 0, 0), leg_speed=0.0).fit_end == pytest.approx(12.6)
     hold = np.linspace(d.fit_end, d.duration, 50)
     assert np.allclose(d.sample_many(hold)[0], (1.0, 2.0, -3.0), atol=1e-9)
     assert np.allclose(d.sample_many(hold)[1], 0.0)
@@ -419,12 +427,12 @@ def test_the_drag_leg_cruises_and_ends_where_it_began():
     assert np.allclose(pos[-1], (1.0, 2.0, -3.0), atol=1e-9) and np.allclose(vel[-1], 0.0)
     leg = ts >= d.doublets_end
     assert np.abs(pos[leg, :2] - (1.0, 2.0)).max() == pytest.approx(
-        I.LEG_SPEED * (I.LEG_CRUISE_S + I.LEG_RAMP_S), rel=1e-3)
+        MI.LEG_SPEED * (MI.LEG_CRUISE_S + MI.LEG_RAMP_S), rel=1e-3)
     assert np.all(pos[leg, 2] == -3.0) and np.all(vel[leg, 2] == 0.0)
     for (t0, t1), sign in zip(d.leg_windows, (1.0, -1.0)):
         cruise = (ts >= t0) & (ts <= t1)
-        assert t1 - t0 == pytest.approx(I.LEG_WINDOW_S)
-        assert np.allclose(vel[cruise, :2], sign * I.LEG_SPEED) and np.all(acc[cruise] == 0.0)
+        assert t1 - t0 == pytest.approx(MI.LEG_WINDOW_S)
+        assert np.allclose(vel[cruise, :2], sign * MI.LEG_SPEED) and np.all(acc[cruise] == 0.0)
     # the reference's own integrals: velocity is the derivative of position
     dt = ts[1] - ts[0]
     assert np.abs(np.gradient(pos[leg, 0], dt) - vel[leg, 0]).max() < 2e-3
@@ -437,15 +445,15 @@ def test_the_drag_leg_reads_the_drag_the_doublets_cannot(vehicle, drag):
     comes out within 5 % on north and east (the doublets alone gave 1.13, and on PX4 SIH itself
     0.46-1.35), and the record says where the drag came from and what the leg read."""
     m = dataclasses.replace(_mission("configs/missions/x500_gusts.yaml", 100), vehicle=vehicle)
-    I._CACHE.clear()
-    rec = I.identify_inprocess(m)
+    FI._CACHE.clear()
+    rec = FI.identify_inprocess(m)
     for a in "xy":
         f = rec["axes"][a]
         assert f["drag_from"] == "leg"
         assert f["drag_per_s"] == pytest.approx(drag, rel=0.05)
         assert f["r2"] > 0.99
         speeds = rec["leg"][a]["speed_mps"]
-        assert speeds[0] > 0.8 * I.LEG_SPEED and speeds[1] < -0.8 * I.LEG_SPEED
+        assert speeds[0] > 0.8 * MI.LEG_SPEED and speeds[1] < -0.8 * MI.LEG_SPEED
     assert rec["axes"]["z"]["drag_from"] == "fitted"
 
 
@@ -524,7 +532,7 @@ def test_north_and_east_share_the_drag_the_leg_reads():
 
 def _noisy_vertical_fit(monkeypatch):
     """The flight's fit reads noise for the vertical velocity (the flight itself untouched)."""
-    import mavadrc.flight as F
+    import mavadrc.design.gains as F  # where the fit is made
     real = F.fit_flight
 
     def scrambled(t, u, v, *args, **kw):
@@ -542,7 +550,7 @@ def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, 
     the safe gains, 1.11 m off its figure eight.  Now the vertical alone flies the safe gains
     with no model, north and east the mission's with the model identified.  Here the vertical
     velocities the fit reads are replaced by noise (the flight itself is untouched)."""
-    from mavadrc.flight import SAFE_WC, SAFE_WO
+    from mavadrc.design.gains import SAFE_WC, SAFE_WO
     _noisy_vertical_fit(monkeypatch)
     code = main(["fly", "configs/missions/thesis_spiral_wind.yaml", "--lockstep", "--out",
                  str(tmp_path), "--no-figures", "-q"])

@@ -12,9 +12,10 @@ import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from mavadrc.experiment import experiment_from_text, run_inprocess  # noqa: E402
-from mavadrc.inprocess import L_POS, L_REF, L_T, STATUS_LINK, fly_inprocess  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.study.experiment import experiment_from_text, run_inprocess  # noqa: E402
+from mavadrc.fast.inprocess import L_POS, L_REF, L_T, STATUS_LINK  # noqa: E402
+from mavadrc.fast.fly import fly_inprocess  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
 from sim.link_model import LINK_FROM  # noqa: E402
 from sim.vehicle import SimVehicle  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
@@ -201,7 +202,7 @@ def test_a_reordered_frame_is_late_not_lost():
     import collections
     import random
 
-    from mavadrc.link import SKIPPED_KEPT, count_sequence
+    from mavadrc.mavlink.link import SKIPPED_KEPT, count_sequence
 
     def count(seqs):
         last, lost, skipped = None, 0, collections.deque(maxlen=SKIPPED_KEPT)

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from mavadrc.flight import make_controller
-from mavadrc.margin import delay_margin, disturbance_response, spec_margin, spectral_radius
-from mavadrc.mission import ControllerSpec
+from mavadrc.design.gains import make_controller
+from mavadrc.design.margin import delay_margin, disturbance_response, spectral_radius
+from mavadrc.design.gains import spec_margin
+from mavadrc.mission.config import ControllerSpec
 
 
 def _ladrc_radius(wc, wo, tau, delay, h, order=1):
@@ -166,7 +167,7 @@ def _flown_rate(ctrl, tau, order, delay, seconds=20.0):
     """The per-step growth of a 1 um offset north (small enough never to reach a limit), the controller's own kernel (its input model
     as position_update runs it) flown against the sampled plant: the envelope's slope over the
     last two thirds."""
-    from mavadrc.margin import _plant
+    from mavadrc.design.margin import _plant
     h = ctrl._h
     a, b = _plant(tau, h, order)
     x = np.zeros(b.size)
@@ -229,7 +230,7 @@ def test_the_shaped_model_damps_the_swing_the_one_lag_model_left_on_px4_sih():
     ("{type: ladrc, input_lag: auto, predict: 1}", "predict"),             # not a boolean
 ])
 def test_a_bad_input_model_names_the_file_line_and_field(controller, field, tmp_path):
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
     from sim.yamlio import ConfigError
     path = tmp_path / "bad.yaml"
     path.write_text(f"name: bad\nvehicle: x500\ncontroller: {controller}\n"
@@ -244,7 +245,7 @@ def test_a_shaped_input_model_given_in_a_mission_flies_as_given(tmp_path):
     from a mission: the controller it makes runs that dead time and two lags, and its lead is
     the model's mean delay."""
     from mavadrc.control.position import IN_ND, IN_NLAG, IN_TAU
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
     path = tmp_path / "shaped.yaml"
     path.write_text("name: shaped\nvehicle: x500\ncontroller: {type: ladrc, input_lag: [0.234, "
                     "0.234, 0.05], input_dead_time: [0.076, 0.076, 0], input_lags: 2}\n"
@@ -260,7 +261,7 @@ def test_the_identified_shape_is_flown_by_the_mission_gains_and_by_the_slowed_de
     """``input_lag: auto`` resolved with the dead time identified: the mission's own gains and
     the defaults (slowed on a slow vehicle by the one-lag rule) both fly the shape; the
     vertical keeps its own dead time."""
-    from mavadrc.flight import resolve_gains
+    from mavadrc.flight.flight import resolve_gains
     lag, dead = (0.25, 0.25, 0.05), (0.08, 0.08, 0.0)
     own = ControllerSpec(kind="ladrc", gains={"wc": (2.0, 2.0, 2.5), "input_lag": "auto"})
     bare = ControllerSpec(kind="ladrc", gains={"input_lag": "auto"})
@@ -281,7 +282,7 @@ def test_the_takeoff_pid_keeps_more_margin_than_the_safe_ladrc_on_every_plant():
     0.074 s after 0.076 s of dead time), it is stable and keeps at least the safe LADRC's delay
     margin, and at the family's worst corner (0.30 s, 50 ms) 40 ms where the safe LADRC keeps
     none (measured 50 and 0)."""
-    from mavadrc.flight import TAKEOFF_KIND, identification_gains, takeoff_gains
+    from mavadrc.flight.flight import TAKEOFF_KIND, identification_gains, takeoff_gains
 
     def ctrl(kind, gains, rate):
         return make_controller(ControllerSpec(kind=kind, rate_hz=rate), hover_thrust=0.5,

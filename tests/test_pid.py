@@ -16,8 +16,8 @@ from mavadrc.control import geometry as G
 from mavadrc.control import kernels as K
 from mavadrc.control.channels import pid_gains, pid_params
 from mavadrc.control.rotations import quat_to_rotmat
-from mavadrc.flight import default_gains, make_controller
-from mavadrc.mission import load_mission
+from mavadrc.design.gains import default_gains, make_controller
+from mavadrc.mission.config import load_mission
 from sim.yamlio import ConfigError
 
 H = 0.01
@@ -369,7 +369,8 @@ def test_pid_flies_the_gusty_x500_mission_in_process():
     PD kind's error away (measured: max 0.08 m vs PD's 0.21 m)."""
     from pathlib import Path
 
-    from mavadrc.inprocess import L_POS, L_REF, fly_inprocess
+    from mavadrc.fast.inprocess import L_POS, L_REF
+    from mavadrc.fast.fly import fly_inprocess
 
     mission = load_mission(Path(__file__).resolve().parent.parent / "configs" / "missions"
                            / "x500_gusts.yaml")

@@ -48,7 +48,7 @@ def test_a_port_chosen_free_is_never_an_ephemeral_one(kind):
     ephemeral range, no socket bound to port 0 meanwhile (a lossy link's, a vehicle's, another
     worker's) can be handed it.  Once, a proxy's own socket took the companion's port and the
     companion found it in use."""
-    from mavadrc import embedded
+    from mavadrc.flight import embedded
 
     span = embedded._ephemeral_range()
     if span is None or span[0] <= embedded.PORT_FLOOR + 1000:

@@ -8,7 +8,7 @@ import pytest
 from mavadrc.control import AttitudeController, PositionController, acceleration_to_attitude
 from mavadrc.control import geometry as G
 from mavadrc.control import rotations as rot
-from mavadrc.trajectories import Circle
+from mavadrc.mission.trajectories import Circle
 
 GRAV = G.GRAVITY
 
@@ -134,7 +134,7 @@ class Still:
         self.pos = np.asarray(pos, dtype=float)
 
     def sample(self, t):
-        from mavadrc.trajectories import Reference
+        from mavadrc.mission.trajectories import Reference
         return Reference(self.pos, np.zeros(3), np.zeros(3), 0.3, 0.0)
 
 

@@ -16,7 +16,7 @@ import pytest
 
 from mavadrc.control import kernels as K
 from mavadrc.control.position import PositionController
-from mavadrc.margin import delay_margin, noise_response
+from mavadrc.design.margin import delay_margin, noise_response
 
 #: PX4 SIH's response as identified in flight (x500_gusts, 2026-12-02): a dead time and two
 #: equal lags, 63 % in 0.257 s
@@ -27,8 +27,8 @@ SIH_TAU = (SIH_LAG - SIH_DEAD) / 2.1462
 def _sih(predict, wc=2.0, wo=10.0, kind="ladrc", lag=SIH_LAG, dead=SIH_DEAD):
     gains = {"wc": (wc, wc, 2.5), "wo": (wo, wo, 12.5)}
     if kind == "adrc":  # as mavadrc's shorthand makes it (flight.make_controller)
-        from mavadrc.flight import make_controller
-        from mavadrc.mission import ControllerSpec
+        from mavadrc.design.gains import make_controller
+        from mavadrc.mission.config import ControllerSpec
         spec = ControllerSpec(kind="adrc", rate_hz=100.0, gains={
             **gains, "td": False, "r": (8.0,) * 3, "c": (1.0,) * 3, "delta": (0.05,) * 3,
             "input_lag": (lag, lag, 0.07), "input_dead_time": (dead, dead, 0.01),
@@ -84,7 +84,7 @@ def test_what_predicting_costs():
     Hz), and a model that overstates the vehicle's delay 4x leaves it 10 ms at most where the
     loop that does not predict keeps 180 ms.  (Flown on the fast path with sensor noise, told 2x
     the lag it failed: README, "A law that predicts".)"""
-    from mavadrc.margin import disturbance_response
+    from mavadrc.design.margin import disturbance_response
     w = [2 * math.pi * 0.1]
     plain, pred = _sih(False), _sih(True)
     assert 0.08 < disturbance_response(plain, w)[0] < 0.1
@@ -169,14 +169,14 @@ def test_a_flight_that_predicts_tracks_as_closely_and_says_so(kind, tmp_path):
     reference's own acceleration reaches the law: given the acceleration fed forward (led
     0.25 s, with the drag's) in its place, the law chases an acceleration that is not the
     reference's and falls 15-17 cm off."""
-    from mavadrc.fly import fly
-    from mavadrc.mission import load_mission
+    from mavadrc.flight.fly import fly
+    from mavadrc.mission.config import load_mission
     got = {}
     for predict in ("false", "true"):
         path = tmp_path / f"m_{predict}.yaml"
         path.write_text(FIGURE.format(kind=kind, predict=predict))
         out = io.StringIO()
-        s, _ = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False,
+        s, _ = fly(load_mission(path), out=tmp_path, lockstep=True,
                    progress=False, stream=out)
         assert s["landed"], s["aborted"]
         assert ("the law predicting 0.24" in out.getvalue()) == (predict == "true")
@@ -196,8 +196,9 @@ def test_the_fast_path_predicts_as_the_flight_does(tmp_path):
     """The in-process fast path (experiments, the robustness study) gives the law the
     reference's own acceleration as the flight does: the same figure eight within 8 mm
     horizontally, no wider than without (given the acceleration fed forward instead: 15 cm)."""
-    from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess
-    from mavadrc.mission import load_mission
+    from mavadrc.fast.inprocess import L_POS, L_REF, L_T
+    from mavadrc.fast.fly import fly_inprocess
+    from mavadrc.mission.config import load_mission
     got = {}
     for predict in ("false", "true"):
         path = tmp_path / f"m_{predict}.yaml"
@@ -220,7 +221,7 @@ def test_predicting_trades_which_wrong_model_the_loop_survives(scenario, holds):
     against 0.14)."""
     from pathlib import Path
 
-    from mavadrc.experiment import load_experiment, run_inprocess
+    from mavadrc.study.experiment import load_experiment, run_inprocess
     exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
                           / "predict.yaml")
     i = [s.name for s in exp.scenarios].index(scenario)
@@ -283,7 +284,7 @@ def test_x500_gusts_observers_answer_the_slow_wander_less_for_a_little_margin():
     120 -> 90 ms of delay margin, the peak of |S| no higher and moved up to ~1.3 Hz."""
     from pathlib import Path
 
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
     m = load_mission(Path(__file__).resolve().parent.parent / "configs" / "missions"
                      / "x500_gusts.yaml")
     wc, wo = m.controller.gains["wc"][0], m.controller.gains["wo"][0]

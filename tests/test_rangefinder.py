@@ -1,4 +1,4 @@
-"""A downward range finder beside the height estimate (mavadrc.rangefinder): the record says how
+"""A downward range finder beside the height estimate (mavadrc.flight.rangefinder): the record says how
 far the estimate strayed from it, and the supervisor ends the mission before a drifting
 estimate flies the vehicle into the ground."""
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from mavadrc.fly import fly
-from mavadrc.mission import load_mission
-from mavadrc.rangefinder import (CLEARANCE_GAP_M, CLEARANCE_HOLD_S, DOWN, REST_SAMPLES,
+from mavadrc.flight.fly import fly
+from mavadrc.mission.config import load_mission
+from mavadrc.flight.rangefinder import (CLEARANCE_GAP_M, CLEARANCE_HOLD_S, DOWN, REST_SAMPLES,
                                  RangeTrack, range_height, rangefinder_text)
-from mavadrc.record import read_table
+from mavadrc.flight.record import read_table
 from sim.yamlio import ConfigError
 
 HOVER = """name: range hover
@@ -106,7 +106,7 @@ def test_a_true_estimate_agrees_with_the_range_finder(tmp_path):
     the flight flies as without it."""
     out = io.StringIO()
     summary, _ = fly(mission(tmp_path, "{rangefinder: true}"), out=tmp_path / "runs",
-                     lockstep=True, figures=False, progress=False, stream=out)
+                     lockstep=True, progress=False, stream=out)
     assert summary["landed"] and not summary["aborted"], summary["aborted"]
     rf = summary["rangefinder"]
     assert rf["source"] == "DISTANCE_SENSOR (downward)" and rf["aligned"].startswith("at rest")
@@ -124,7 +124,7 @@ def test_the_ground_after_the_touchdown_is_not_set_beside_the_estimate(tmp_path)
     figures end with the touchdown seen (0.25 m of that climb is read before it), where
     counting the ground after it, through the cut and the disarm, read 1.7 m."""
     summary, _ = fly(mission(tmp_path, "{rangefinder: true, ground_climb_mps: 0.3}"),
-                     out=tmp_path / "runs", lockstep=True, figures=False, progress=False,
+                     out=tmp_path / "runs", lockstep=True, progress=False,
                      stream=io.StringIO())
     assert summary["landed"], summary["aborted"]
     assert summary["rangefinder"]["max_difference_m"] < 0.3
@@ -140,7 +140,7 @@ def test_a_drifting_estimate_is_caught_by_the_range_finder_before_the_ground(tmp
         out = io.StringIO()
         runs[rf] = fly(mission(tmp_path, f"{{rangefinder: {str(rf).lower()}, "
                                          "height_drift_mps: 0.1}", name=f"d{rf}.yaml"),
-                       out=tmp_path / "runs", lockstep=True, figures=False, progress=False,
+                       out=tmp_path / "runs", lockstep=True, progress=False,
                        stream=out) + (out.getvalue(),)
     summary, folder, text = runs[True]
     assert summary["aborted"] and "range finder reads the vehicle" in summary["aborted"][0]
@@ -176,7 +176,7 @@ def test_a_lift_off_the_estimate_alone_reads_waits_for_the_range_finder(tmp_path
         summary, folder = fly(mission(tmp_path, f"{{rangefinder: {str(rf).lower()}, "
                                                 "mass_scale: 1.4, height_drift_mps: 0.1}",
                                       name=f"h{rf}.yaml"),
-                              out=tmp_path / "runs", lockstep=True, figures=False,
+                              out=tmp_path / "runs", lockstep=True,
                               progress=False, stream=out)
         truth = read_table(folder / "truth.csv")
         up = truth["down"][0] - truth["down"]  # the truth in the estimate's frame

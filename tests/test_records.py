@@ -6,9 +6,9 @@ import json
 import math
 from pathlib import Path
 
-from mavadrc.cli import main
-from mavadrc.flight import print_table
-from mavadrc.record import FlightRecord, error_figures
+from mavadrc.cli.main import main
+from mavadrc.flight.flight import print_table
+from mavadrc.flight.record import FlightRecord, error_figures
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -50,7 +50,7 @@ def test_a_flight_cut_short_writes_null_not_nan_and_prints_no_nan(tmp_path, caps
     """Ctrl-C before the settling window ended: the figures after it do not exist."""
     nothing = error_figures([], [], [], 0.0)
     assert math.isnan(nothing["rms_error_m"])  # what the recorder gives, before the record
-    from mavadrc.record import finite
+    from mavadrc.flight.record import finite
 
     summary = finite({"rms_error_xyz_m": [0.1, 0.1, 0.1], "max_error_xyz_m": [0.2, 0.2, 0.2],
                       "rms_error_m": 0.17, "max_error_m": 0.3, "settle_s": 14.0,

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavadrc import response as R
-from mavadrc.cli import main
+from mavadrc.study import response as R
+from mavadrc.cli.main import main
 
 
 def streams(delay, lag, seconds=60.0, seed=0):

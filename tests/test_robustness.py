@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavadrc import compare as C
-from mavadrc.experiment import experiment_from_text, load_experiment, run_inprocess
-from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess
-from mavadrc.mission import vehicle_flown
-from mavadrc.report import check_goals, findings, grouped, margins_table
+from mavadrc.study import compare as C
+from mavadrc.study.experiment import experiment_from_text, load_experiment, run_inprocess
+from mavadrc.fast.inprocess import L_POS, L_REF, L_T
+from mavadrc.fast.fly import fly_inprocess
+from mavadrc.mission.config import vehicle_flown
+from mavadrc.study.report import check_goals, findings, grouped, margins_table
 from sim.params import load_vehicle
 from sim.vehicle import SimVehicle, response_time_constants, vehicle_variant
 from sim.yamlio import ConfigError, load_yaml
@@ -119,8 +120,8 @@ def test_the_sample_rate_is_the_rate_the_controller_runs_at(knobs):
 
 
 def test_the_input_model_scale_multiplies_the_measured_model_and_leaves_pd_alone(knobs):
-    """input_lag: auto is identified on the vehicle (mavadrc.identify), then scaled."""
-    from mavadrc.identify import with_identified
+    """input_lag: auto is identified on the vehicle (mavadrc.design.identify), then scaled."""
+    from mavadrc.fast.identify import with_identified
     i = _index(knobs, "model x2")
     nominal = with_identified(knobs.mission(_index(knobs, "nominal"), 1), seed=0)
     scaled = with_identified(knobs.mission(i, 1), seed=0)
@@ -296,7 +297,7 @@ def test_the_oracle_flies_its_own_feedback_gains(knobs):
     of the controller it is the floor for), not at PD's defaults (wc 2.5 / 3)."""
     import dataclasses
 
-    from mavadrc.experiment import ControllerEntry
+    from mavadrc.study.experiment import ControllerEntry
 
     base = knobs.controllers[0].spec  # PD's defaults as gains
     exp = dataclasses.replace(knobs, controllers=[
@@ -316,7 +317,7 @@ def test_the_linearised_disturbance_response_is_the_closed_form():
     tau: 1 / |s^2 + (kd s + kp) / (tau s + 1)|; with the disturbance fed forward (the oracle)
     the lag lets (1 - 1 / (tau s + 1)) of it through."""
     from mavadrc.control import PositionController
-    from mavadrc.margin import disturbance_response
+    from mavadrc.design.margin import disturbance_response
 
     pd = PositionController("pd", h=0.004, hover_thrust=0.5, wc=(4.0, 4.0, 4.0))
     w = np.array([0.3, 1.0, 4.0])
@@ -347,7 +348,7 @@ def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturban
     that learns too starts from the thrust learnt; one that does not gets the whole vertical
     disturbance against the thrust told in its z3, so neither asks for a different thrust."""
     from mavadrc.control import PositionController
-    from mavadrc.flight import carry_over
+    from mavadrc.flight.flight import carry_over
 
     g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
 
@@ -431,7 +432,7 @@ def test_a_pid_learns_the_thrust_from_its_integrator_and_hands_it_over(k):
     thrust."""
     from mavadrc.control import PositionController
     from mavadrc.control import kernels as K
-    from mavadrc.flight import carry_over
+    from mavadrc.flight.flight import carry_over
 
     g, h = 9.80665, 0.01
     pid = PositionController("pid", h=h, hover_thrust=0.5, wc=(2.0, 2.0, 3.0),

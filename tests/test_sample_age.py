@@ -32,12 +32,13 @@ os.environ.setdefault("MAVLINK20", "1")
 from mavadrc.control import PositionController  # noqa: E402
 from mavadrc.control import kernels as K  # noqa: E402
 from mavadrc.control.channels import han_params, ladrc_params  # noqa: E402
-from mavadrc.experiment import experiment_from_text, load_experiment, run_inprocess  # noqa: E402
-from mavadrc.flight import late_warning, make_controller  # noqa: E402
-from mavadrc.inprocess import L_POS  # noqa: E402
-from mavadrc.margin import delay_margin  # noqa: E402
-from mavadrc.mission import ControllerSpec  # noqa: E402
-from mavadrc.record import read_table  # noqa: E402
+from mavadrc.study.experiment import experiment_from_text, load_experiment, run_inprocess  # noqa: E402
+from mavadrc.flight.flight import late_warning  # noqa: E402
+from mavadrc.design.gains import make_controller  # noqa: E402
+from mavadrc.fast.inprocess import L_POS  # noqa: E402
+from mavadrc.design.margin import delay_margin  # noqa: E402
+from mavadrc.mission.config import ControllerSpec  # noqa: E402
+from mavadrc.flight.record import read_table  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 from sitl_helpers import both_paths  # noqa: E402
 
@@ -168,7 +169,7 @@ def test_the_controller_and_the_mission_file_check_the_latency_and_the_thrust_es
     with pytest.raises(ValueError, match="'ladrc' and 'adrc'"):
         ctrl("pd", kp=1.0, kd=2.0, latency="auto")
     head = "trajectory:\n  - takeoff: {altitude: 1.0}\n  - land: {speed: 0.5}\ncontroller:\n"
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
 
     def mission(body):
         f = tmp_path / "m.yaml"
@@ -234,7 +235,7 @@ def test_told_nothing_of_the_age_the_ladrc_holds_only_by_modelling_it_as_dead_ti
     the 40 ms as part of the response's dead time, and the observers model it: the spiral holds
     (0.040 m measured; told the age, 0.039).  Flown with one lag of the same 63 % time (as
     before the shape was modelled) the same blind loop breaks (0.35 m)."""
-    from mavadrc.identify import with_identified
+    from mavadrc.fast.identify import with_identified
     c = robustness.controllers[[c.name for c in robustness.controllers].index("LADRC")].spec
     blind = dataclasses.replace(c, gains={k: v for k, v in c.gains.items() if k != "latency"})
     assert _max_error(robustness, "latency 40 ms", "LADRC", spec=blind) < 0.06
@@ -278,7 +279,7 @@ def test_the_lockstep_flight_measures_the_ages_the_fast_path_knows(tmp_path):
 def test_the_delay_margin_of_a_compensating_controller_is_the_delay_it_is_not_told_of():
     """The tuned spiral LADRC: 48 ms of margin on the plant it assumes; on 40 ms of delay it is
     not told of, 8 ms; told it (measured, or given as its latency), it keeps 40 ms."""
-    # the input model identified on the bundled Crazyflie (mavadrc.identify)
+    # the input model identified on the bundled Crazyflie (mavadrc.design.identify)
     gains = {"wc": (4.0, 4.0, 4.25), "wo": (23.9, 23.9, 25.4), "input_lag": (0.125, 0.125, 0.052)}
 
     def ctrl(**more):
@@ -326,7 +327,7 @@ def test_the_age_follows_a_vehicle_clock_that_runs_slow():
     next offset was taken, and read 6-110 ms (median 64) for samples a few ms old.  The offset
     is now a line in our time, fitted through the least queued exchanges of the last seconds:
     the ages of samples 3 ms old read 3 ms to within the clock's own 4 ms steps."""
-    from mavadrc.link import TimeSync
+    from mavadrc.mavlink.link import TimeSync
 
     rng = np.random.default_rng(4)
     clock = _sim_clock(0.9865)
@@ -349,7 +350,7 @@ def test_the_clock_rate_fitted_is_kept_while_too_few_exchanges_fit_a_line():
     """A clock 5 % slow, fitted; then, on a loaded machine, one exchange whose round trip is far
     shorter than the rest leaves fewer than MIN_FIT near it: the newest offset is taken, at the
     rate fitted, not at ours (in CI a real-time flight reported a skew of 0 so)."""
-    from mavadrc.link import TimeSync
+    from mavadrc.mavlink.link import TimeSync
 
     rng = np.random.default_rng(6)
     clock = _sim_clock(0.95, quantum_s=0.001)
@@ -369,7 +370,7 @@ def test_the_age_recovers_at_once_from_a_vehicle_clock_that_jumps():
     """A vehicle that reboots (its clock back near 0) or resets its time: the exchange that
     lands far off the line starts it afresh, and the ages are right again from the exchange
     after it, though the exchanges before had shorter round trips."""
-    from mavadrc.link import TimeSync
+    from mavadrc.mavlink.link import TimeSync
 
     rng = np.random.default_rng(5)
     ts = TimeSync()
@@ -392,11 +393,11 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     window read them up to 0.4 s old."""
     from short_flights import short_mission
 
-    from mavadrc.fly import fly
+    from mavadrc.flight.fly import fly
 
     mission = short_mission(tmp_path, hover=3, extra="sim: {clock_rate: 0.95}\n")
     assert mission.clock_rate == 0.95
-    summary, folder = fly(mission, out=tmp_path, figures=False, progress=False, timeout=90.0)
+    summary, folder = fly(mission, out=tmp_path, progress=False, timeout=90.0)
     assert summary["landed"], summary["aborted"]
     assert summary["config"]["clock_rate"] == 0.95
     link = summary["link"]
@@ -410,13 +411,13 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     assert ages.size > 300 and np.percentile(ages, 90) < 0.015
     # the fast path has one clock, and in lockstep the setpoints are the clock: both refuse the
     # key rather than ignore it
-    from mavadrc.fly import UsageError
-    from mavadrc.inprocess import fly_inprocess
+    from mavadrc.flight.fly import UsageError
+    from mavadrc.fast.fly import fly_inprocess
 
     with pytest.raises(ValueError, match="clock_rate"):
         fly_inprocess(mission)
     with pytest.raises(UsageError, match="clock_rate"):
-        fly(mission, out=tmp_path, lockstep=True, figures=False, progress=False)
+        fly(mission, out=tmp_path, lockstep=True, progress=False)
 
 
 
@@ -427,8 +428,8 @@ def test_a_loop_that_stalls_says_how_late_it_answered(tmp_path, monkeypatch):
     none late."""
     from short_flights import short_mission
 
-    import mavadrc.flight as F
-    from mavadrc.fly import fly
+    import mavadrc.flight.flight as F
+    from mavadrc.flight.fly import fly
 
     handle = F.Flight._on_sample
     stalled = []
@@ -441,7 +442,7 @@ def test_a_loop_that_stalls_says_how_late_it_answered(tmp_path, monkeypatch):
 
     monkeypatch.setattr(F.Flight, "_on_sample", stalling)
     mission = short_mission(tmp_path, hover=3)
-    summary, _ = fly(mission, out=tmp_path, figures=False, progress=False, timeout=90.0)
+    summary, _ = fly(mission, out=tmp_path, progress=False, timeout=90.0)
     assert stalled and summary["landed"], summary["aborted"]
     link = summary["link"]
     assert 0.25 < link["sample_age_ms_max"] / 1e3 < 0.5
@@ -461,7 +462,7 @@ def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitt
     quickly, then once a second."""
     from types import SimpleNamespace
 
-    import mavadrc.link as L
+    import mavadrc.mavlink.link as L
 
     clock = [0.0]
     monkeypatch.setattr(L.time, "monotonic_ns", lambda: int(clock[0] * 1e9))

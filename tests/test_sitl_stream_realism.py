@@ -345,7 +345,7 @@ def test_mavadrc_sitl_says_what_the_link_did_at_exit_and_refuses_a_bad_option():
 
 def test_the_embedded_vehicle_gets_the_missions_link():
     """`mavadrc fly` starts `python -m sim` for the mission: its ``sim: {link:}`` goes along."""
-    from mavadrc.embedded import link_options
+    from mavadrc.flight.embedded import link_options
 
     model = LinkModel(Way(latency_s=0.03), blackouts=((5.0, 1.0),))
     assert link_options(SimpleNamespace(link=model)) == link_args(model)

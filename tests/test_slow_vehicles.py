@@ -15,8 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from mavadrc.fly import fly
-from mavadrc.mission import load_mission
+from mavadrc.flight.fly import fly
+from mavadrc.mission.config import load_mission
 from sim.vehicle import SimVehicle
 
 #: measured on the real SITLs: (10 %, 63 %, 90 %) of a 5 deg pitch step, s
@@ -61,14 +61,14 @@ def test_a_fast_observer_limit_cycles_there_as_on_the_real_one_and_the_record_sa
     path = tmp_path / "m.yaml"
     path.write_text(text)
     out = io.StringIO()
-    fast, _ = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False,
+    fast, _ = fly(load_mission(path), out=tmp_path, lockstep=True,
                   progress=False, stream=out)
     osc = fast["attitude_oscillation"]
     assert osc["amplitude_deg"] > 15.0 and 0.5 < osc["frequency_hz"] < 1.5, osc
     assert osc["limit_cycle"] is True, osc  # regular, as on the real ones (0.64-0.99 there)
     assert any("a limit cycle, whatever the error says" in w for w in fast["warnings"])
     assert "a limit cycle, whatever the error says" in out.getvalue()
-    pd, _ = fly(load_mission(path), kind="pd", out=tmp_path, lockstep=True, figures=False,
+    pd, _ = fly(load_mission(path), kind="pd", out=tmp_path, lockstep=True,
                 progress=False, stream=io.StringIO())
     assert pd["attitude_oscillation"]["amplitude_deg"] < 3.0
     assert not any("limit cycle" in w for w in pd["warnings"])
@@ -88,7 +88,7 @@ def test_the_default_gains_do_not_limit_cycle_there(kind, name, autopilot, tmp_p
                      f"controller: {{type: {kind}, rate_hz: 100}}"))
     path = tmp_path / "m.yaml"
     path.write_text(text)
-    s, _ = fly(load_mission(path), out=tmp_path, lockstep=True, figures=False, progress=False,
+    s, _ = fly(load_mission(path), out=tmp_path, lockstep=True, progress=False,
                stream=io.StringIO())
     assert s["attitude_oscillation"]["amplitude_deg"] < 3.0, s["attitude_oscillation"]
     assert not any("limit cycle" in w for w in s["warnings"])

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from mavadrc.flight import (OSCILLATION_WARN_DEG, Flight, print_table, swing_text,
+from mavadrc.flight.flight import (OSCILLATION_WARN_DEG, Flight, print_table, swing_text,
                             swing_warning)
-from mavadrc.record import LIMIT_CYCLE_REGULARITY, attitude_oscillation, regularity
+from mavadrc.flight.record import LIMIT_CYCLE_REGULARITY, attitude_oscillation, regularity
 
 RATE = 50.0  # Hz: ATTITUDE as the autopilots stream it
 T = np.arange(0.0, 40.0, 1.0 / RATE)

@@ -12,9 +12,9 @@ import json
 import numpy as np
 import pytest
 
-from mavadrc.fly import fly
-from mavadrc.mission import load_mission
-from mavadrc.record import read_table
+from mavadrc.flight.fly import fly
+from mavadrc.mission.config import load_mission
+from mavadrc.flight.record import read_table
 from sim.vehicle import response_time_constants
 
 WINDY = """name: windy lift-off
@@ -41,7 +41,7 @@ def windy(tmp_path_factory):
     path = out / "windy.yaml"
     path.write_text(WINDY)
     stream = io.StringIO()
-    summary, _ = fly(load_mission(path), lockstep=True, out=out, figures=False,
+    summary, _ = fly(load_mission(path), lockstep=True, out=out,
                      progress=False, stream=stream)
     folder = next(p for p in out.iterdir() if p.is_dir())
     table = read_table(folder / "controller.csv")
@@ -65,8 +65,9 @@ def test_the_pid_hands_over_before_the_doublets_without_a_jump(windy):
     """The safe LADRC takes over TAKEOFF_HANDOVER_S before the fit's first sample, starting
     from the PID's integrator as its disturbance estimate: the command does not jump, and the
     identification is the safe LADRC's as before (the vehicle's 63 % time within 15 %)."""
-    from mavadrc.flight import TAKEOFF_KIND, TAKEOFF_WC
-    from mavadrc.identify import MAX_DELAY_S, TAKEOFF_HANDOVER_S
+    from mavadrc.flight.flight import TAKEOFF_KIND, TAKEOFF_WC
+    from mavadrc.design.identify import MAX_DELAY_S
+    from mavadrc.mission.identification import TAKEOFF_HANDOVER_S
     summary, table, _ = windy
     took = summary["takeoff_controller"]
     assert took["type"] == TAKEOFF_KIND and took["wc"] == list(TAKEOFF_WC)
@@ -125,14 +126,14 @@ def test_the_takeoff_starts_where_the_estimate_has_the_vehicle(tmp_path, monkeyp
     change, the arming, the spool-up) the estimate of the vehicle at rest moved 0.24 m, and the
     loop lifted off that far from its reference (0.244 m in the takeoff by the estimate).  The
     mission's frame is moved to where the estimate has the vehicle at the start: 0.042."""
-    import mavadrc.ground as G
+    import mavadrc.flight.ground as G
 
     def flown(sub):
         out = tmp_path / sub
         out.mkdir()
         path = out / "m.yaml"
         path.write_text(WANDER)
-        summary, _ = fly(load_mission(path), lockstep=True, out=out, figures=False,
+        summary, _ = fly(load_mission(path), lockstep=True, out=out,
                          progress=False, stream=io.StringIO())
         table = read_table(next(p for p in out.iterdir() if p.is_dir()) / "controller.csv")
         takeoff = np.array([p == "takeoff" for p in table["phase"]])

@@ -174,7 +174,7 @@ def test_the_td_is_outside_the_loop_its_delay_margin_measures():
     (and the gains `input_lag: auto` slows to keep it) is the same with it and without.  Its
     time off its grid (0 at the nominal step) made the linearisation unstable once: a mission
     with td: true was slowed to wc 0.125 on PX4 SITL and drifted 1.1 m off its hover."""
-    from mavadrc.margin import delay_margin
+    from mavadrc.design.margin import delay_margin
 
     def margin(td):
         c = PositionController("adrc", h=HP, hover_thrust=0.5, td=td, h1=1.0, r=8.0, c=1.0,

@@ -24,9 +24,9 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 
-from mavadrc.experiment import experiment_from_text  # noqa: E402
-from mavadrc.inprocess import L_POS, L_YAW  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.study.experiment import experiment_from_text  # noqa: E402
+from mavadrc.fast.inprocess import L_POS, L_YAW  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
 from sim import cli  # noqa: E402
 from sim import physics as phys  # noqa: E402
 from sim.firmware.mixer import thrust_curve, thrust_curve_inverse  # noqa: E402
@@ -381,7 +381,8 @@ def test_the_fast_path_linearises_with_the_missions_autopilot(tmp_path, autopilo
     by default (THR_MDL_FAC 0, MOT_THST_EXPO 0.65), as the server does, so the hover command
     the mission gives the controller (0.574 and 0.415 for an x500 on linear motors) really
     hovers: PD, which has no integrator to hide a wrong one, holds its altitude."""
-    from mavadrc.inprocess import L_POS, L_REF, fly_inprocess
+    from mavadrc.fast.inprocess import L_POS, L_REF
+    from mavadrc.fast.fly import fly_inprocess
 
     exp = experiment_from_text("curve.yaml", EXPERIMENT.format(
         vehicle=vehicle_file(tmp_path, 0.0), autopilot=autopilot))

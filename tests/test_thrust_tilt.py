@@ -15,10 +15,12 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from mavadrc.control.geometry import (GRAVITY, TILT_RATIO_RANGE,  # noqa: E402
                                       acceleration_to_attitude, thrust_for_tilt)
-from mavadrc.experiment import experiment_from_text, run_inprocess  # noqa: E402
-from mavadrc.identify import doublets, with_identified  # noqa: E402
-from mavadrc.inprocess import L_POS, L_REF, L_T, L_THRUST, fly_inprocess  # noqa: E402
-from mavadrc.mission import load_mission  # noqa: E402
+from mavadrc.study.experiment import experiment_from_text, run_inprocess  # noqa: E402
+from mavadrc.fast.identify import with_identified  # noqa: E402
+from mavadrc.mission.identification import doublets  # noqa: E402
+from mavadrc.fast.inprocess import L_POS, L_REF, L_T, L_THRUST  # noqa: E402
+from mavadrc.fast.fly import fly_inprocess  # noqa: E402
+from mavadrc.mission.config import load_mission  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402
 from sitl_helpers import both_paths  # noqa: E402
 
@@ -129,8 +131,8 @@ def test_a_thrust_tilt_it_does_not_know_names_the_file_and_field(tmp_path):
 def test_tune_writes_the_thrust_tilt_its_gains_were_tuned_with():
     import yaml
 
-    from mavadrc.mission import ControllerSpec
-    from mavadrc.tune import controller_yaml
+    from mavadrc.mission.config import ControllerSpec
+    from mavadrc.study.tune import controller_yaml
     for tilt in ("measured", "commanded"):
         spec = ControllerSpec(kind="ladrc", thrust_tilt=tilt, gains={"wc": (2.0, 2.0, 3.0)})
         result = {"spec": spec, "improved": True, "cost_m": 0.01, "start_cost_m": 0.02,

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavadrc.trajectories import (
+from mavadrc.mission.trajectories import (
     Circle,
     FigureEight,
     Hover,
@@ -115,7 +115,7 @@ def test_a_shipped_missions_reference_is_the_same_one_time_at_a_time(name):
     shipped mission's reference, joins and the hold after its end included, is the one
     sampled many times at once (to 1e-12: a transit's polynomial, a matrix product, rounds an
     ulp differently for one row than for many)."""
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
     traj, phases = load_mission(Path(__file__).resolve().parent.parent / "configs" / "missions"
                                 / f"{name}.yaml").build_trajectory(np.array([1.0, -2.0, 0.0]))
     joins = [t0 for t0, _ in phases]
@@ -477,7 +477,7 @@ def test_transit_accel_times_the_run_up_into_a_segment_that_starts_at_speed(tmp_
     """x500_gusts' figure eight starts at 1.9 m/s at the hover point: the transit into it is
     timed for the change of velocity at ``transit_accel`` (1 m/s^2 there: twice as long as at
     the default 2, half the peak acceleration); a bad value names the file, line and field."""
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
     from sim.yamlio import ConfigError
 
     def transit(accel):
@@ -511,7 +511,7 @@ def test_every_shipped_mission_asks_no_step_of_the_feed_forward(path):
     which a vehicle whose tilt follows late answers off its track (leaving the spiral of
     ``thesis_spiral_wind``, 2.5 m/s^2 toward its centre, the transit to the hover used to
     drop it to 0 at once)."""
-    from mavadrc.mission import load_mission
+    from mavadrc.mission.config import load_mission
 
     traj, phases = load_mission(path).build_trajectory(np.zeros(3))
     for start, name in phases[1:]:
@@ -524,7 +524,7 @@ def test_every_shipped_mission_asks_no_step_of_the_feed_forward(path):
 def test_a_transit_leaving_a_turn_starts_with_the_turns_acceleration():
     """The transit out of a segment that ends turning begins with that segment's acceleration
     and still reaches the next one's start at its position, velocity and acceleration."""
-    from mavadrc.mission import Transit
+    from mavadrc.mission.config import Transit
 
     target = Hover([4.0, 1.0, -2.0]).sample(0.0)
     leg = Transit([0.0, 0.0, -2.0], [0.0, 5.0, 0.0], 0.0, target, 2.0, acc0=[2.5, 0.0, 0.0])

@@ -1,4 +1,4 @@
-"""A simulator's true state beside the autopilot's estimate (mavadrc.truth): the summary says how
+"""A simulator's true state beside the autopilot's estimate (mavadrc.flight.truth): the summary says how
 far the vehicle really was from its reference, and how far the estimate it flew on was off."""
 
 import io
@@ -9,10 +9,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 from sitl_helpers import start_vehicle
 
-from mavadrc.fly import fly
-from mavadrc.mission import load_mission
-from mavadrc.record import read_table
-from mavadrc.truth import SOURCES, TruthTrack, estimate_steps, true_state, truth_text
+from mavadrc.flight.fly import fly
+from mavadrc.mission.config import load_mission
+from mavadrc.flight.record import read_table
+from mavadrc.flight.truth import SOURCES, TruthTrack, estimate_steps, true_state, truth_text
 from sim.mavlink import streams
 
 HOVER = """name: truth hover
@@ -240,7 +240,7 @@ def test_a_drifting_height_estimate_is_flown_as_it_says_and_measured_by_the_trut
     below the reference by as much as the estimate drifted since the mission began."""
     m = mission(tmp_path, HOVER.replace("HOVER", "8"), extra="sim: {height_drift_mps: 0.03}\n")
     out = io.StringIO()
-    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True, figures=False,
+    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True,
                           progress=False, stream=out)
     assert summary["landed"], summary["aborted"]
     truth = summary["truth"]
@@ -283,7 +283,7 @@ def test_a_wandering_estimate_is_flown_and_the_truth_measures_its_wander(tmp_pat
     for wander in (0.0, 0.06):
         m = mission(tmp_path, WANDERING, name=f"w{wander}.yaml",
                     extra=f"sim: {{wander: {wander}, seed: 1}}\n")
-        summary, _ = fly(m, out=tmp_path / "runs", lockstep=True, figures=False,
+        summary, _ = fly(m, out=tmp_path / "runs", lockstep=True,
                          progress=False, stream=io.StringIO())
         assert summary["landed"], summary["aborted"]
         assert summary["config"]["wander"] == wander
@@ -300,7 +300,7 @@ def test_a_wandering_estimate_is_flown_and_the_truth_measures_its_wander(tmp_pat
 def test_an_ardupilot_sitl_sends_sim_state_and_a_clean_estimate_agrees_with_it(tmp_path):
     text = HOVER.replace("HOVER", "3").replace("safety: {", "safety: {set_guid_options: true, ")
     m = mission(tmp_path, text, extra="sim: {autopilot: ardupilot}\n")
-    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True, figures=False,
+    summary, folder = fly(m, out=tmp_path / "runs", lockstep=True,
                           progress=False, stream=io.StringIO())
     assert summary["landed"], summary["aborted"]
     truth = summary["truth"]
@@ -319,7 +319,7 @@ def test_in_real_time_a_true_sample_is_timed_by_its_arrival(tmp_path):
     try:
         m = mission(tmp_path, MOVING)
         summary, folder = fly(m, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
-                              out=tmp_path / "runs", figures=False, progress=False,
+                              out=tmp_path / "runs", progress=False,
                               stream=io.StringIO(), timeout=90.0)
     finally:
         srv.stop()
@@ -341,7 +341,7 @@ def test_a_vehicle_without_truth_says_so_and_flies_as_before(tmp_path, monkeypat
         m = mission(tmp_path, HOVER.replace("HOVER", "2"))
         out = io.StringIO()
         summary, folder = fly(m, connect=f"udpout:127.0.0.1:{srv.local_ports['offboard']}",
-                              out=tmp_path / "runs", figures=False, progress=False, stream=out,
+                              out=tmp_path / "runs", progress=False, stream=out,
                               timeout=60.0)
     finally:
         srv.stop()

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
-from mavadrc.inprocess import L_POS, L_REF, L_T, fly_inprocess
-from mavadrc.mission import load_mission
+from mavadrc.fast.inprocess import L_POS, L_REF, L_T
+from mavadrc.fast.fly import fly_inprocess
+from mavadrc.mission.config import load_mission
 from sim.sensors import WANDER_CORNER_HZ, wander_band_rms
 
 HOVER = """name: hover on PX4 SIH's quad
@@ -100,7 +101,7 @@ def _wander_flown(scenario, controller, seeds=range(3)):
     ``controller`` (both by name) on the fast path, one per seed."""
     from pathlib import Path
 
-    from mavadrc.experiment import load_experiment, run_inprocess
+    from mavadrc.study.experiment import load_experiment, run_inprocess
     exp = load_experiment(Path(__file__).resolve().parent.parent / "configs" / "experiments"
                           / "estimate_wander.yaml")
     i = [s.name for s in exp.scenarios].index(scenario)

@@ -5,7 +5,7 @@ For each controller of gusts.yaml (its gains and input model; the oracle: its PD
 disturbance itself fed forward), and any controller file ``mavadrc tune`` wrote (``--also``),
 the horizontal channel closed around the vehicle's measured response (a first-order lag of the
 63 % time of :func:`sim.vehicle.response_time_constants`) gives |G_d(jw)|, the position error in
-metres per m/s^2 of disturbance acceleration (:func:`mavadrc.margin.disturbance_response`), and
+metres per m/s^2 of disturbance acceleration (:func:`mavadrc.design.margin.disturbance_response`), and
 the delay margin on that plant.  The disturbance's spectrum is measured on the fast path: the
 simulator's true disturbance acceleration (x and y) hovering in the gust scenarios' wind, wind
 seeds 1000+ (not those the experiment reports).
@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import welch
 
-from mavadrc.experiment import load_experiment, run_inprocess
-from mavadrc.flight import make_controller
-from mavadrc.inprocess import L_DIST, L_T
-from mavadrc.margin import delay_margin, disturbance_response
-from mavadrc.mission import _read_controller
+from mavadrc.study.experiment import load_experiment, run_inprocess
+from mavadrc.design.gains import make_controller
+from mavadrc.fast.inprocess import L_DIST, L_T
+from mavadrc.design.margin import delay_margin, disturbance_response
+from mavadrc.mission.config import _read_controller
 from sim.vehicle import response_time_constants
 from sim.yamlio import Section, load_yaml
 

@@ -603,7 +603,7 @@ class PositionController:
 
     def set_drag(self, drag):
         """Fly the linear drag ``drag`` ((3,) 1/s) from the next step on (learnt in flight:
-        :mod:`mavadrc.learn`).  The observers' states are kept: their z3 gives up the part of
+        :mod:`mavadrc.control.learn`).  The observers' states are kept: their z3 gives up the part of
         the disturbance the model now carries over the next steps."""
         d = np.array(drag, dtype=np.float64).reshape(3)
         if not np.all((d >= 0.0) & (d <= DRAG_MAX)):

@@ -1,0 +1,1 @@
+"""Controller design: gain policy, delay margin, the input-model fit."""

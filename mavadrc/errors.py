@@ -1,0 +1,10 @@
+"""The errors the commands tell apart: a user's mistake (exit 2, nothing flown or run) and a
+flight that could not start or go on (exit 1)."""
+
+
+class UsageError(ValueError):
+    """A mission or an option that cannot be flown or run as given (exit 2, nothing sent)."""
+
+
+class FlightError(RuntimeError):
+    """The flight could not start or go on; the message says why, in the vehicle's words."""

@@ -1,0 +1,1 @@
+"""The in-process fast path: a mission flown on the vehicle's compiled kernels."""

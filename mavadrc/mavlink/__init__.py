@@ -1,0 +1,1 @@
+"""The companion's MAVLink link: transport, commands, parameters, timesync, samples."""

@@ -1,0 +1,1 @@
+"""Missions, reference trajectories and the identification manoeuvres."""

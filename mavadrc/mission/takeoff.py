@@ -1,0 +1,51 @@
+"""The takeoff's rules, shared by a flight over MAVLink and the in-process fast path: the thrust
+spooled up on the ground, when the vehicle has lifted off, how fast the heading turns."""
+import math
+import numpy as np
+
+
+SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
+
+
+
+#: the takeoff waits for the vehicle: while it is still on the ground and the reference has
+#: climbed this far above it (m), the mission clock stops (the reference waits) and the thrust
+#: per acceleration rises by TAKEOFF_RAMP_PER_S of itself per second, until it lifts off
+TAKEOFF_WAIT_M = 0.15
+
+
+
+TAKEOFF_RAMP_PER_S = 0.15
+
+
+
+#: s of waiting with the thrust at its bound (twice the hover thrust told) before giving up
+TAKEOFF_WAIT_MAX_S = 5.0
+
+
+
+#: lift-off: this high above the takeoff spot (m), or climbing faster than this (m/s)
+LIFTOFF_HEIGHT = 0.05
+
+
+
+LIFTOFF_CLIMB = 0.2
+
+
+
+def spool_thrust(t, start_at, hover):
+    """Normalized thrust of the spool-up: 0.8 hover, reached at vehicle time ``start_at`` after a
+    ramp of SPOOL_S (0 before it); ``t`` a time or an array of times."""
+    return 0.8 * hover * np.clip((t - (start_at - SPOOL_S)) / SPOOL_S, 0.0, 1.0)
+
+
+
+def lifted_off(height, vz):
+    """Whether a vehicle ``height`` m above its takeoff spot, at vertical speed ``vz`` (NED), has
+    left the ground."""
+    return height >= LIFTOFF_HEIGHT or vz < -LIFTOFF_CLIMB
+
+
+#: the heading turns from the vehicle's to the mission's at this rate (rad/s): PX4's
+#: MPC_YAWRAUTO_MAX default, 45 deg/s
+YAW_RATE = math.radians(45.0)

@@ -1,0 +1,1 @@
+"""Experiments, comparisons, reports, tuning, figures and benchmarks."""
