@@ -106,16 +106,18 @@ def test_a_changing_link_warning_is_kept_once_in_the_summary():
     reading once (a flight behind 5 % loss once kept eleven), beside the other warnings."""
     import types
 
+    from mavadrc.flight.notices import Notices
+
     said = []
-    f = types.SimpleNamespace(_warned={}, _warned_text={}, warnings=[], say=said.append)
+    f = Notices(types.SimpleNamespace(say=said.append))
     for text in ("3.0 % of the samples lost", "a 0.120 s gap between samples",
                  "6.5 % of the samples lost"):
-        Flight._warn_once(f, "link", text, every=0.0, latest=True)
-    Flight._warn_once(f, "margin", "the delay margin is short", every=0.0)
-    Flight._warn_once(f, "link", "4.0 % of the samples lost", every=0.0, latest=True)
+        f.warn_once("link", text, every=0.0, latest=True)
+    f.warn_once("margin", "the delay margin is short", every=0.0)
+    f.warn_once("link", "4.0 % of the samples lost", every=0.0, latest=True)
     assert f.warnings == ["4.0 % of the samples lost", "the delay margin is short"]
     assert len(said) == 5  # the console said each
-    Flight._warn_once(f, "margin", "the delay margin is short", every=0.0)
+    f.warn_once("margin", "the delay margin is short", every=0.0)
     assert f.warnings.count("the delay margin is short") == 1
 
 
@@ -253,15 +255,16 @@ def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypa
     import mavadrc.flight.flight as F
     monkeypatch.setattr(F, "LOCKSTEP_STALE_S", 0.5)
     slow = []
-    history = Flight._descent_history
+    from mavadrc.flight.landing import Landing
+    history = Landing.history
 
     def descent_history(self, s, final):
-        if not slow and s.t - self._mission_t0 > 2.0:
+        if not slow and s.t - self.progress.t0 > 2.0:
             slow.append(s.t)
             time.sleep(1.5)
         return history(self, s, final)
 
-    monkeypatch.setattr(Flight, "_descent_history", descent_history)
+    monkeypatch.setattr(Landing, "history", descent_history)
     summary, _ = fly(short_mission(tmp_path, hover=1), out=tmp_path, lockstep=True,
                      progress=False, stream=io.StringIO())
     assert slow, "the slow step was not taken"
@@ -305,7 +308,8 @@ def test_a_mode_change_and_an_arm_command_lost_on_every_try_are_sent_again(tmp_p
 
 def test_an_error_in_the_companion_lands_the_vehicle(tmp_path, monkeypatch):
     calls = {"n": 0}
-    original = Flight._mission_step
+    from mavadrc.flight.mission_step import MissionStep
+    original = MissionStep.step
 
     def flaky(self, s):
         calls["n"] += 1
@@ -313,7 +317,7 @@ def test_an_error_in_the_companion_lands_the_vehicle(tmp_path, monkeypatch):
             raise RuntimeError("injected")
         return original(self, s)
 
-    monkeypatch.setattr(Flight, "_mission_step", flaky)
+    monkeypatch.setattr(MissionStep, "step", flaky)
     srv, link = lossy_vehicle(link_seed=11)
     try:
         summary, folder, text = fly_through(link, short_mission(tmp_path, hover=8), tmp_path)

@@ -17,7 +17,8 @@ from pymavlink import mavutil
 from short_flights import FAST_PX4, SHORT, fly_through, lossy_vehicle, short_mission, stop
 
 from mavadrc.flight.fly import fly
-from mavadrc.flight.ground import TOUCHDOWN_TILT_DEG, landing_tilt
+from mavadrc.flight.landing import TOUCHDOWN_TILT_DEG
+from mavadrc.flight.steering import landing_tilt
 from mavadrc.mission.config import load_mission
 from mavadrc.flight.record import read_table
 
@@ -255,7 +256,7 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
     so that the refusal outlasts the 2 s before the handover on a busy machine too), and its land
     detector, as PX4's, refuses the disarm: 2 s into the refusal the companion hands the landing
     to AUTO.LAND, which disarms it, and the flight ends landed, with the summary saying how."""
-    from mavadrc.flight.ground import DISARM_BOUND_S, LAND_HANDOVER_S
+    from mavadrc.flight.landing import DISARM_BOUND_S, LAND_HANDOVER_S
     srv, link = lossy_vehicle(link_seed=18, ground_climb_mps=1.0)
     modes = []
 
@@ -294,8 +295,8 @@ def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, mo
     for 12 s): the flight escalates, its failsafe watches the land mode to the disarm, and the
     summary says disarmed but not landed, with the reason.  Its many texts are kept in
     summary.json as the first and the last few (here 3 and 5), the rest counted."""
-    import mavadrc.flight.flight as F
-    import mavadrc.flight.ground as G
+    import mavadrc.flight.landing as G
+    import mavadrc.flight.summary as F
     monkeypatch.setattr(G, "DISARM_BOUND_S", 6.0)
     monkeypatch.setattr(F, "TEXTS_KEPT", (3, 5))
     srv, link = lossy_vehicle(link_seed=19, ground_climb_mps=2.0)

@@ -207,20 +207,21 @@ def _interrupted_ardupilot_flight(tmp_path, monkeypatch, at_s=4.0):
     ``at_s`` s into its mission: the failsafe holds, then lands."""
     import io
 
-    from mavadrc.flight.flight import Flight
     from mavadrc.flight.fly import fly
+    from mavadrc.flight.mission_step import MissionStep
     from mavadrc.mission.config import load_mission
 
-    step = Flight._mission_step
+    step = MissionStep.step
     fired = []
 
     def interrupting(self, s):
-        if not fired and self.mission_start is not None and s.t - self.mission_start > at_s:
+        start = self.progress.start
+        if not fired and start is not None and s.t - start > at_s:
             fired.append(s.t)
             raise KeyboardInterrupt
         return step(self, s)
 
-    monkeypatch.setattr(Flight, "_mission_step", interrupting)
+    monkeypatch.setattr(MissionStep, "step", interrupting)
     path = tmp_path / "m.yaml"
     path.write_text((MISSIONS / "ardupilot_hover.yaml").read_text()
                     .replace("duration: 5", "duration: 20"))

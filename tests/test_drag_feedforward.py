@@ -21,7 +21,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from mavadrc.control.position import PositionController  # noqa: E402
 from mavadrc.study.experiment import experiment_from_text  # noqa: E402
-from mavadrc.flight.flight import resolve_gains  # noqa: E402
+from mavadrc.design.gains import resolve_gains  # noqa: E402
 from mavadrc.mission.identification import doublets  # noqa: E402
 from mavadrc.fast.inprocess import L_POS, L_REF, L_T  # noqa: E402
 from mavadrc.fast.fly import fly_inprocess  # noqa: E402
@@ -271,7 +271,7 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
     (x500_gusts' wc 2: 140 ms) fly as given, and on a vehicle slower than the design the larger
     need of the two holds.  A rule of flight: resolved without it (the fast path, which
     studies the gains as given) wc 4 stays wc 4."""
-    from mavadrc.flight.flight import MISSION_MARGIN_FLOOR, slower_than
+    from mavadrc.design.gains import MISSION_MARGIN_FLOOR, slower_than
     from mavadrc.design.gains import make_controller
     m = load_mission("configs/missions/thesis_spiral_wind.yaml")
     lag = (0.263, 0.263, 0.052)
@@ -459,7 +459,7 @@ def test_taking_over_mid_motion_does_not_feed_the_drag_forward_twice():
     the safe one's, not one drag's worth more (on PX4 SIH the command went from -1.2 to -3
     m/s^2 at the takeover and the vehicle fell 0.17 m off)."""
     from mavadrc.control import PositionController
-    from mavadrc.flight.flight import carry_over
+    from mavadrc.flight.choice import carry_over
     v, drag, h = -0.75, 1.0, 0.01
     safe = PositionController("ladrc", h=h, hover_thrust=0.5, wc=1.0, wo=4.0)
     x, ref = np.array([0.0, 0.0, -3.0]), np.array([0.0, 0.0, -3.0])

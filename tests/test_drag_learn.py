@@ -17,7 +17,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from mavadrc.control.position import PositionController  # noqa: E402
-from mavadrc.flight.flight import resolve_gains  # noqa: E402
+from mavadrc.design.gains import resolve_gains  # noqa: E402
 from mavadrc.control.learn import MIN_SECONDS, RATE_PER_S2, DragLearner  # noqa: E402
 from mavadrc.mission.config import load_mission  # noqa: E402
 from sim.yamlio import ConfigError  # noqa: E402

@@ -20,7 +20,7 @@ from mavadrc.design import identify as I
 
 from mavadrc.fast import identify as FI
 from mavadrc.design.fitworker import FitWorker
-from mavadrc.flight.flight import fit_and_make
+from mavadrc.design.gains import fit_and_make
 from mavadrc.mission.config import load_mission
 
 

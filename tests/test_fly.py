@@ -143,7 +143,7 @@ def test_the_hover_thrust_learnt_in_flight_is_recorded_and_said(tmp_path):
     """Over MAVLink (lockstep), the flight's summary keeps the hover thrust learnt beside the one
     told, and the console says both; told right (the bundled Crazyflie), they agree within 2 %
     (0.468 against 0.473 measured)."""
-    from mavadrc.flight.flight import print_table
+    from mavadrc.flight.summary import print_table
 
     summary, _ = fly_quiet(load_mission(MISSIONS / "hover.yaml"), tmp_path)
     # PX4's land detector agreeing at once: disarmed by the companion's command, never refused

@@ -1,4 +1,4 @@
-"""The touchdown judged from the samples during a land segment (``GroundPhases._ground_contact``).
+"""The touchdown judged from the samples during a land segment (``Landing.ground_contact``).
 
 Flown on PX4 SIH with `hover.yaml --controller ladrc` (the safe gains, a slow vertical loop),
 the land segment's reference paused 0.5 m up where its final leg begins; the vehicle, 8 cm
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mavadrc.mission import trajectories as T
-from mavadrc.flight.ground import GroundPhases
+from mavadrc.flight.landing import Landing
 from mavadrc.mission.config import FINAL_HEIGHT, FINAL_SPEED
 
 H = 0.01
@@ -36,16 +36,15 @@ def _land(seconds=8.0):
 
 def _judge_rows(rows, carried=False):
     g = 9.80665
-    flight = types.SimpleNamespace(
+    choice = types.SimpleNamespace(
         ctrl=types.SimpleNamespace(z=np.array([[0, 0, 0], [0, 0, 0],
-                                               [0, 0, -0.7 * g if carried else -0.4]])),
-        landed_state=None, landed_state_wall=None, _settled_since=None, _settled_at=None,
-        _descent=collections.deque())
-    flight._height_still = lambda s: GroundPhases._height_still(flight, s)
+                                               [0, 0, -0.7 * g if carried else -0.4]])))
+    vehicle = types.SimpleNamespace(landed_state=None, landed_state_wall=None)
+    landing = Landing(None, None, None, vehicle, None, None, None, None, None, choice, None, None)
     for t, rz, z, vz in rows:
         s = types.SimpleNamespace(t=t, pos=np.array([0.0, 0.0, z]), vel=np.array([0.0, 0.0, vz]))
-        flight._descent.append((t, z))  # as _descent_history keeps it, before the judgement
-        how = GroundPhases._ground_contact(flight, s, rz, 0.0)
+        landing.descent.append((t, z))  # as Landing.history keeps it, before the judgement
+        how = landing.ground_contact(s, rz, 0.0)
         if how is not None:
             return t, how
     return None
@@ -168,7 +167,7 @@ def test_the_steps_on_the_ground_before_the_land_segments_end_are_not_scored():
     reported max error, where its flight had kept 0.08.  The ground holding the vehicle up (the
     vertical disturbance estimate) from the contact on marks where the scoring ends."""
     from mavadrc.control.geometry import GRAVITY
-    from mavadrc.flight.ground import CONTACT_HELD_SHARE, GAP_GROWTH
+    from mavadrc.flight.landing import CONTACT_HELD_SHARE, GAP_GROWTH
     rows = np.loadtxt(DATA / "px4_sih_contact_in_land.txt")
     contact = 75.20  # SIH's truth: still from here
     rec = _recorded(rows)

@@ -179,7 +179,7 @@ def test_in_process_the_doublets_are_flown_on_the_hover_thrust_told():
     (the vehicle its own file, told its own hover thrust) the identification's controller keeps
     the figure told; in flight it learns it in the takeoff and pauses over the identify
     segment (the next test); the mission's controller, after the switch, learns on."""
-    from mavadrc.flight.flight import identification_gains, resolve_gains
+    from mavadrc.design.gains import identification_gains, resolve_gains
     from mavadrc.fast.fly import fly_inprocess
 
     m = _mission("configs/missions/thesis_spiral_wind.yaml", 250)
@@ -214,18 +214,19 @@ def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_pa
     from the identify segment's start to its end, and carried into the mission's controller."""
     import io
 
-    from mavadrc.flight.flight import Flight
     from mavadrc.flight.fly import fly
+    from mavadrc.flight.identification import Identification
 
     seen = []
-    pause = Flight._pause_learning
+    pause = Identification.pause_learning
 
     def spy(self, t, final_land):
         pause(self, t, final_land)
-        seen.append((t, self.ctrl.thrust_learning_paused, self.ctrl.hover_thrust_estimate,
-                     self._identifying(), self._id_span, self._in_final_land(t)))
+        ctrl = self.choice.ctrl
+        seen.append((t, ctrl.thrust_learning_paused, ctrl.hover_thrust_estimate,
+                     self.choice.identifying(), self.span, self.progress.in_final_land(t)))
 
-    monkeypatch.setattr(Flight, "_pause_learning", spy)
+    monkeypatch.setattr(Identification, "pause_learning", spy)
     path = tmp_path / "heavy.yaml"
     path.write_text(HEAVY)
     m = load_mission(path)
@@ -345,7 +346,7 @@ def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
     margin of 3/4 of that lag: the bundled vehicles' response (0.125 s) keeps most of the fast
     defaults, PX4 SIH's (0.25 s) gets about wc 1.1 (wc 2.5 swung +-13 deg there), and gains the
     mission gives are flown as given."""
-    from mavadrc.flight.flight import MARGIN_SHARE, resolve_gains
+    from mavadrc.design.gains import MARGIN_SHARE, resolve_gains
     from mavadrc.design.gains import make_controller
     from mavadrc.design.margin import delay_margin
     from mavadrc.mission.config import ControllerSpec
@@ -372,7 +373,7 @@ def test_the_default_gains_slow_down_to_keep_their_margin_on_a_slow_vehicle():
 def test_the_fast_path_flies_the_gains_the_flight_resolves_after_identifying():
     """input_lag: auto without wc/wo: the fast path (and so compare --via mavlink) flies the
     defaults slowed to keep their margin, as the flight does once it has identified."""
-    from mavadrc.flight.flight import resolve_gains
+    from mavadrc.design.gains import resolve_gains
     from mavadrc.design.identify import observer_lag
     from mavadrc.fast.identify import with_identified
     m = _mission("configs/missions/hover.yaml", 100)

@@ -261,7 +261,7 @@ def test_the_identified_shape_is_flown_by_the_mission_gains_and_by_the_slowed_de
     """``input_lag: auto`` resolved with the dead time identified: the mission's own gains and
     the defaults (slowed on a slow vehicle by the one-lag rule) both fly the shape; the
     vertical keeps its own dead time."""
-    from mavadrc.flight.flight import resolve_gains
+    from mavadrc.design.gains import resolve_gains
     lag, dead = (0.25, 0.25, 0.05), (0.08, 0.08, 0.0)
     own = ControllerSpec(kind="ladrc", gains={"wc": (2.0, 2.0, 2.5), "input_lag": "auto"})
     bare = ControllerSpec(kind="ladrc", gains={"input_lag": "auto"})
@@ -282,7 +282,7 @@ def test_the_takeoff_pid_keeps_more_margin_than_the_safe_ladrc_on_every_plant():
     0.074 s after 0.076 s of dead time), it is stable and keeps at least the safe LADRC's delay
     margin, and at the family's worst corner (0.30 s, 50 ms) 40 ms where the safe LADRC keeps
     none (measured 50 and 0)."""
-    from mavadrc.flight.flight import TAKEOFF_KIND, identification_gains, takeoff_gains
+    from mavadrc.design.gains import TAKEOFF_KIND, identification_gains, takeoff_gains
 
     def ctrl(kind, gains, rate):
         return make_controller(ControllerSpec(kind=kind, rate_hz=rate), hover_thrust=0.5,

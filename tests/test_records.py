@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from mavadrc.cli.main import main
-from mavadrc.flight.flight import print_table
+from mavadrc.flight.summary import print_table
 from mavadrc.flight.record import FlightRecord, error_figures
 
 ROOT = Path(__file__).resolve().parent.parent

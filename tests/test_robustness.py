@@ -348,7 +348,7 @@ def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturban
     that learns too starts from the thrust learnt; one that does not gets the whole vertical
     disturbance against the thrust told in its z3, so neither asks for a different thrust."""
     from mavadrc.control import PositionController
-    from mavadrc.flight.flight import carry_over
+    from mavadrc.flight.choice import carry_over
 
     g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
 
@@ -432,7 +432,7 @@ def test_a_pid_learns_the_thrust_from_its_integrator_and_hands_it_over(k):
     thrust."""
     from mavadrc.control import PositionController
     from mavadrc.control import kernels as K
-    from mavadrc.flight.flight import carry_over
+    from mavadrc.flight.choice import carry_over
 
     g, h = 9.80665, 0.01
     pid = PositionController("pid", h=h, hover_thrust=0.5, wc=(2.0, 2.0, 3.0),

@@ -33,7 +33,7 @@ from mavadrc.control import PositionController  # noqa: E402
 from mavadrc.control import kernels as K  # noqa: E402
 from mavadrc.control.channels import han_params, ladrc_params  # noqa: E402
 from mavadrc.study.experiment import experiment_from_text, load_experiment, run_inprocess  # noqa: E402
-from mavadrc.flight.flight import late_warning  # noqa: E402
+from mavadrc.flight.summary import late_warning  # noqa: E402
 from mavadrc.design.gains import make_controller  # noqa: E402
 from mavadrc.fast.inprocess import L_POS  # noqa: E402
 from mavadrc.design.margin import delay_margin  # noqa: E402
@@ -431,16 +431,16 @@ def test_a_loop_that_stalls_says_how_late_it_answered(tmp_path, monkeypatch):
     import mavadrc.flight.flight as F
     from mavadrc.flight.fly import fly
 
-    handle = F.Flight._on_sample
+    handle = F.Flight.on_sample
     stalled = []
 
     def stalling(self, s):
-        if self.phase == "mission" and not stalled and self.steps > 100:
+        if self.phase == "mission" and not stalled and self.progress.steps > 100:
             stalled.append(s.t)
             time.sleep(0.3)
         return handle(self, s)
 
-    monkeypatch.setattr(F.Flight, "_on_sample", stalling)
+    monkeypatch.setattr(F.Flight, "on_sample", stalling)
     mission = short_mission(tmp_path, hover=3)
     summary, _ = fly(mission, out=tmp_path, progress=False, timeout=90.0)
     assert stalled and summary["landed"], summary["aborted"]

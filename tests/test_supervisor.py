@@ -158,11 +158,11 @@ def test_samples_out_of_order_are_told_from_samples_lost():
     # the live line splits them the same way
     import types
 
-    from mavadrc.flight.flight import Flight
+    from mavadrc.flight.mission_step import MissionStep
 
     f = types.SimpleNamespace(gate=g, lockstep=False,
                               link=types.SimpleNamespace(timesync=types.SimpleNamespace(rtts=[])))
-    line = Flight._link_line(f)
+    line = MissionStep.link_line(f)
     assert f"lost {100 * (recent - ooo):.1f} %, out of order {100 * ooo:.1f} %" in line
     # a late sample from before the counting restarted is no missing sample of the new count
     g.restart()
@@ -273,7 +273,7 @@ def _descent(times, z_of_t):
 
 
 def test_touchdown_speed_is_the_fastest_descent_of_the_position_estimate():
-    from mavadrc.flight.ground import touchdown_speed
+    from mavadrc.flight.landing import touchdown_speed
     t = np.arange(0.0, 2.0, 0.02)
     # 0.3 m/s down until 1.5 s, then on the ground: 0.3 m/s, not the instant before it settled
     z = _descent(t, lambda tt: -1.0 + 0.3 * min(tt, 1.5))
@@ -296,7 +296,7 @@ def test_touchdown_speed_is_judged_where_the_descent_ended_not_where_touchdown_w
     """PX4 SIH's height estimate climbed at up to 0.2 m/s on the ground after the contact, so
     touchdown was seen seconds later: judged on the last 2 s before that, the speed read 0.00
     for true 0.23-0.35 m/s.  It is judged where the estimate's descent ended."""
-    from mavadrc.flight.ground import CONTACT_S, contact_speed, descent_end, touchdown_speed
+    from mavadrc.flight.landing import CONTACT_S, contact_speed, descent_end, touchdown_speed
     t = np.arange(0.0, 8.0, 0.01)
     # 0.5 m/s down, contact at 3 s, then the estimate climbs 0.15 m/s for 5 s on the ground
     z = _descent(t, lambda tt: -1.5 + 0.5 * tt if tt <= 3.0 else -0.15 * (tt - 3.0))

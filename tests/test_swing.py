@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from mavadrc.flight.flight import (OSCILLATION_WARN_DEG, Flight, print_table, swing_text,
-                            swing_warning)
+from mavadrc.flight.summary import (OSCILLATION_WARN_DEG, margin_outcome, print_table, swing_text,
+                                    swing_warning)
 from mavadrc.flight.record import LIMIT_CYCLE_REGULARITY, attitude_oscillation, regularity
 
 RATE = 50.0  # Hz: ATTITUDE as the autopilots stream it
@@ -106,8 +106,8 @@ def _margin_warned():
             "identified (204 ms): the mission's gains are fast for this vehicle and a limit "
             "cycle is likely")
     spoken = []
-    flight = SimpleNamespace(_warned_text={"margin": said}, say=spoken.append)
-    return flight, said, spoken
+    notices = SimpleNamespace(warned_text={"margin": said}, say=spoken.append)
+    return notices, said, spoken
 
 
 def test_a_predicted_limit_cycle_not_flown_is_said_so():
@@ -116,7 +116,7 @@ def test_a_predicted_limit_cycle_not_flown_is_said_so():
     flight, said, spoken = _margin_warned()
     warnings = ["another", said]
     calm = attitude_oscillation(T, resonance(0.25, 0, deg=0.2), np.zeros(T.size))
-    Flight._margin_outcome(flight, warnings, calm)
+    margin_outcome(flight, warnings, calm)
     assert warnings[0] == "another"
     assert warnings[1].startswith(said) and "; measured: +-0." in warnings[1]
     assert warnings[1].endswith(f"none past the {OSCILLATION_WARN_DEG:g} deg warned at")
@@ -129,15 +129,15 @@ def test_a_predicted_limit_cycle_flown_stays_warned():
     flight, said, spoken = _margin_warned()
     warnings = [said]
     cycle = attitude_oscillation(T, tone(20.0, 1.0), np.zeros(T.size))
-    Flight._margin_outcome(flight, warnings, cycle)
+    margin_outcome(flight, warnings, cycle)
     assert warnings == [said] and not spoken
     noise = attitude_oscillation(T, resonance(0.25, 0, deg=4.0), np.zeros(T.size))
     assert noise["limit_cycle"] is False and noise["amplitude_deg"] > OSCILLATION_WARN_DEG
-    Flight._margin_outcome(flight, warnings, noise)
+    margin_outcome(flight, warnings, noise)
     assert warnings == [said] and not spoken
     # a short record cannot tell: the warning stays as said
     short = T[: int(6 * RATE)]
-    Flight._margin_outcome(flight, warnings, attitude_oscillation(
+    margin_outcome(flight, warnings, attitude_oscillation(
         short, np.radians(0.3) * np.sin(2 * np.pi * short), np.zeros(short.size)))
     assert warnings == [said] and not spoken
 

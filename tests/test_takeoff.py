@@ -65,7 +65,7 @@ def test_the_pid_hands_over_before_the_doublets_without_a_jump(windy):
     """The safe LADRC takes over TAKEOFF_HANDOVER_S before the fit's first sample, starting
     from the PID's integrator as its disturbance estimate: the command does not jump, and the
     identification is the safe LADRC's as before (the vehicle's 63 % time within 15 %)."""
-    from mavadrc.flight.flight import TAKEOFF_KIND, TAKEOFF_WC
+    from mavadrc.design.gains import TAKEOFF_KIND, TAKEOFF_WC
     from mavadrc.design.identify import MAX_DELAY_S
     from mavadrc.mission.identification import TAKEOFF_HANDOVER_S
     summary, table, _ = windy
@@ -126,7 +126,7 @@ def test_the_takeoff_starts_where_the_estimate_has_the_vehicle(tmp_path, monkeyp
     change, the arming, the spool-up) the estimate of the vehicle at rest moved 0.24 m, and the
     loop lifted off that far from its reference (0.244 m in the takeoff by the estimate).  The
     mission's frame is moved to where the estimate has the vehicle at the start: 0.042."""
-    import mavadrc.flight.ground as G
+    import mavadrc.flight.takeoff as G
 
     def flown(sub):
         out = tmp_path / sub
@@ -146,7 +146,7 @@ def test_the_takeoff_starts_where_the_estimate_has_the_vehicle(tmp_path, monkeyp
     assert "takeoff" not in summary["controller_flown"]
     assert summary["takeoff_spot_moved_m"] > 0.1
     assert err[0] < 0.01 and err.max() < 0.08, (err[0], err.max())
-    monkeypatch.setattr(G.GroundPhases, "_anchor_here", lambda self, s: None)
+    monkeypatch.setattr(G.Takeoff, "_anchor_here", lambda self, s: None)
     summary, err = flown("not")
     assert summary["takeoff_spot_moved_m"] is None
     assert err[0] > 0.1 and err.max() > 0.15

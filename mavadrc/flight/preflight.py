@@ -1,5 +1,4 @@
-"""The flight's first phases: connect, setup, measure (:class:`Preflight`, a part of
-:class:`~mavadrc.flight.flight.Flight`).
+"""The flight's first phases: connect, setup, measure.
 
 Connect: the autopilot's heartbeat names the system flown.  Setup: its identity, who owns it,
 its parameters, the streams (each request confirmed).  Measure: idle setpoints stream while the
@@ -8,13 +7,13 @@ achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rat
 
 import time
 
-
 from mavadrc.design.fitworker import FitWorker
 from mavadrc.design.identify import load_fitting
 from mavadrc.errors import FlightError
 from mavadrc.mavlink.link import TIMEOUT, LinkError, M, result_name
 from mavadrc.flight.rangefinder import RANGE_HZ
 from mavadrc.mavlink.sequence import sequence_for
+from mavadrc.flight.state import vehicle_mode
 from mavadrc.flight.truth import TRUTH_HZ, TruthTrack
 
 #: vehicle time (s) over which the achieved sample rate is measured before arming
@@ -30,28 +29,52 @@ STREAM_TRIES_UNANSWERED = 2
 
 
 class Preflight:
-    """Connect, setup and the rate measurement (methods of :class:`~mavadrc.flight.flight.Flight`)."""
+    """Connect, setup and the rate measurement."""
 
-    def _connect(self):
+    def __init__(self, mission, link, record, clock, vehicle, notices, choice, ident, confirm,
+                 setpoints, steering, takeoff, gate, tracks, *, lockstep, heartbeat_timeout,
+                 deadline, watchdog):
+        self.m = mission
+        self.link = link
+        self.rec = record
+        self.clock = clock
+        self.v = vehicle
+        self.notices = notices
+        self.choice = choice
+        self.ident = ident
+        self.confirm = confirm
+        self.setpoints = setpoints
+        self.steering = steering
+        self.takeoff = takeoff
+        self.gate = gate
+        self.tracks = tracks
+        self.lockstep = lockstep
+        self.heartbeat_timeout = heartbeat_timeout
+        self.deadline = deadline
+        self.watchdog = watchdog  # raises if the vehicle we started died
+
+    def connect(self):
         # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
         # while the vehicle comes up; with the hover thrust still to be read, made again after
+        say = self.notices.say
         from mavadrc.control._jit import needs_compiling
         from mavadrc.control.position import position_update
 
         if needs_compiling(position_update):
-            self.say("compiling the controller's kernels (the first flight after an install or "
-                     "an update; numba caches them: later flights start at once)")
-        self.ctrl = self._make_controller(self.hover if self.hover is not None else 0.5)
-        if self._identifying():
+            say("compiling the controller's kernels (the first flight after an install or "
+                "an update; numba caches them: later flights start at once)")
+        c = self.choice
+        c.make(c.hover if c.hover is not None else 0.5)
+        if c.identifying():
             load_fitting()  # here too: where the fits' process cannot start, they run here
-            if not self.lockstep and self._fitter is None:
-                self._fitter = FitWorker()
-                if self._fitter.why_not is not None:
-                    self.say("the input model will be fitted in a thread beside the loop (its "
-                             f"process did not start: {self._fitter.why_not})")
+            if not self.lockstep and self.ident.fitter is None:
+                self.ident.fitter = FitWorker()
+                if self.ident.fitter.why_not is not None:
+                    say("the input model will be fitted in a thread beside the loop (its "
+                        f"process did not start: {self.ident.fitter.why_not})")
         timeout = self.heartbeat_timeout
-        if self._deadline is not None:
-            timeout = min(timeout, max(0.0, self._deadline - time.monotonic()))
+        if self.deadline is not None:
+            timeout = min(timeout, max(0.0, self.deadline - time.monotonic()))
         waited = [0]
         # a vehicle of ours answers within a second; another is waited for aloud, from the start
         first = 0 if self.watchdog is None else 3
@@ -62,80 +85,84 @@ class Preflight:
             s = waited[0]
             waited[0] += 1
             if s == first:
-                self.say(f"waiting for an autopilot's heartbeat on {self.link.url} (up to "
-                         f"{timeout:.0f} s; Ctrl-C to stop)")
+                say(f"waiting for an autopilot's heartbeat on {self.link.url} (up to "
+                    f"{timeout:.0f} s; Ctrl-C to stop)")
             elif s > first and s % HEARTBEAT_SAY_S == 0:
-                self.say(f"still waiting for a heartbeat on {self.link.url} ({s} s)")
+                say(f"still waiting for a heartbeat on {self.link.url} ({s} s)")
 
         hb = self.link.wait_heartbeat(timeout, idle=idle)
-        self.seq = sequence_for(self.link.autopilot)
+        self.v.seq = sequence_for(self.link.autopilot)
         others = sorted(self.link.systems_heard - {self.link.target_system})
-        self.say(f"connected to system {self.link.target_system} ({self.link.autopilot}, "
-                 f"{self.mode_name(hb.custom_mode)}) on {self.link.url}"
-                 + (f"; also heard system {', '.join(map(str, others))} (--sysid picks one)"
-                    if others else ""))
+        say(f"connected to system {self.link.target_system} ({self.link.autopilot}, "
+            f"{vehicle_mode(self.link, hb.custom_mode)}) on {self.link.url}"
+            + (f"; also heard system {', '.join(map(str, others))} (--sysid picks one)"
+               if others else ""))
 
-    def _setup(self):
-        link = self.link
-        self.phase = "setup"
-        self._identify()
+    def setup(self):
+        link, v, c, say = self.link, self.v, self.choice, self.notices.say
+        seq = v.seq
+        self.clock.phase = "setup"
+        self._identify_vehicle()
         self._owner_check()
-        if self.hover is None:
-            name = self.seq.hover_param
-            self.hover = float(link.param_read(name))
-            self.sources["hover_thrust"] = f"the vehicle's {name}"
-            self.ctrl = self._make_controller(self.hover)
-        self.say(f"hover thrust {self.hover:.3f} from {self.sources['hover_thrust']}")
-        if self.seq.motor_delay_param is None:
-            self.motor_delay = self.seq.motor_delay_default
-            self.sources["motor_delay"] = f"{self.seq.name}'s arming delay"
+        if c.hover is None:
+            name = seq.hover_param
+            c.hover = float(link.param_read(name))
+            v.sources["hover_thrust"] = f"the vehicle's {name}"
+            c.make(c.hover)
+        say(f"hover thrust {c.hover:.3f} from {v.sources['hover_thrust']}")
+        if seq.motor_delay_param is None:
+            v.motor_delay = seq.motor_delay_default
+            v.sources["motor_delay"] = f"{seq.name}'s arming delay"
         else:
-            self.motor_delay = max(0.0, float(self.read_param(self.seq.motor_delay_param,
-                                                              self.seq.motor_delay_default)))
-            self.sources["motor_delay"] = self.seq.motor_delay_param
+            v.motor_delay = max(0.0, float(self.read_param(seq.motor_delay_param,
+                                                           seq.motor_delay_default)))
+            v.sources["motor_delay"] = seq.motor_delay_param
         self._request_streams()
-        self.seq.preflight(self)  # before the setpoint stream (and a lockstep clock) starts
+        # before the setpoint stream (and a lockstep clock) starts
+        seq.preflight(link, self.m.safety, say, self.read_param, v.sources)
         for key in ("angle_boost",):
-            if key in self.sources:
-                self.say(self.sources[key])
-        self.gate.restart(self.h)
-        self._enter("measure", None)
+            if key in v.sources:
+                say(v.sources[key])
+        self.gate.restart(c.h)
+        self.clock.enter("measure", None)
 
     def read_param(self, name, default):
         """A parameter of the vehicle, or ``default`` (said so) when it does not answer."""
         try:
             value = float(self.link.param_read(name))
         except LinkError:
-            self.say(f"the vehicle did not answer a read of {name}: using {default:g}")
+            self.notices.say(f"the vehicle did not answer a read of {name}: using {default:g}")
             return default
         return value
 
-    def _identify(self):
+    def _identify_vehicle(self):
         """AUTOPILOT_VERSION: firmware version, and whether this is the bundled vehicle."""
-        result = self.link.command_wait(M.MAV_CMD_REQUEST_MESSAGE,
-                                        M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, tries=2)
+        link, v = self.link, self.v
+        result = link.command_wait(M.MAV_CMD_REQUEST_MESSAGE,
+                                   M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, tries=2)
         end = time.monotonic() + (0.5 if result == M.MAV_RESULT_ACCEPTED else 0.0)
-        while "AUTOPILOT_VERSION" not in self.link.messages and time.monotonic() < end:
-            self.link.recv(0.02)
-        av = self.link.messages.get("AUTOPILOT_VERSION")
-        self.identity = {"autopilot": self.link.autopilot, "system_id": self.link.target_system}
+        while "AUTOPILOT_VERSION" not in link.messages and time.monotonic() < end:
+            link.recv(0.02)
+        av = link.messages.get("AUTOPILOT_VERSION")
+        v.identity = {"autopilot": link.autopilot, "system_id": link.target_system}
         if av is not None:
-            v = av.flight_sw_version
+            ver = av.flight_sw_version
             kinds = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
-            self.identity["firmware_version"] = (
-                f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF} {kinds.get(v & 0xFF, v & 0xFF)}")
+            v.identity["firmware_version"] = (
+                f"{ver >> 24 & 0xFF}.{ver >> 16 & 0xFF}.{ver >> 8 & 0xFF} "
+                f"{kinds.get(ver & 0xFF, ver & 0xFF)}")
             custom = bytes(av.flight_custom_version).rstrip(b"\0")
-            if self.bundled is None:
-                self.bundled = custom == b"mavadrc"
-        if self.bundled is None:
-            self.bundled = False
-        self.identity["bundled_vehicle"] = self.bundled
+            if v.bundled is None:
+                v.bundled = custom == b"mavadrc"
+        if v.bundled is None:
+            v.bundled = False
+        v.identity["bundled_vehicle"] = v.bundled
 
     def _owner_check(self):
         """Armed, in the air or already in the mode that takes setpoints: another controller
         owns the vehicle.  Refused (nothing sent that changes mode, arming or thrust) unless
         takeover."""
-        link = self.link
+        link, v, say = self.link, self.v, self.notices.say
         hb = link.heartbeat
         link.command_wait(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, tries=2)
         end = time.monotonic() + 0.3
@@ -149,50 +176,51 @@ class Preflight:
             owned.append("armed")
         if in_air:
             owned.append("in the air")
-        if self.seq.in_control(hb):
-            owned.append(f"in {self.mode_name(hb.custom_mode)}")
-        self.takeover_in_air = False
+        if v.seq.in_control(hb):
+            owned.append(f"in {vehicle_mode(link, hb.custom_mode)}")
+        v.takeover_in_air = False
         if not owned:
-            if self.takeover:
-                self.say("--takeover: the vehicle is on the ground and disarmed, flying as usual")
-                self.takeover = False
+            if v.takeover:
+                say("--takeover: the vehicle is on the ground and disarmed, flying as usual")
+                v.takeover = False
             return
         what = ", ".join(owned)
-        if not self.takeover:
+        if not v.takeover:
             hint = ""
             if not link.armed and not in_air:
-                hint = (f" (a disarmed vehicle on the ground left in {self.seq.control_mode}: "
+                hint = (f" (a disarmed vehicle on the ground left in {v.seq.control_mode}: "
                         "PX4 returns to it after a failsafe landing; switch it to another mode)")
             raise FlightError(
                 f"system {link.target_system} is {what}: another controller owns it, so mavadrc "
                 "sent nothing that changes its mode, arming or thrust; land it first, or give "
                 f"--takeover to fly it from where it is{hint}")
-        self.takeover_in_air = link.armed and (in_air or ess is None)
-        self.say(f"--takeover: system {link.target_system} is {what}; flying it from where it is")
+        v.takeover_in_air = link.armed and (in_air or ess is None)
+        say(f"--takeover: system {link.target_system} is {what}; flying it from where it is")
         if not link.armed:
-            self.takeover = False  # disarmed on the ground: an ordinary flight from here
+            v.takeover = False  # disarmed on the ground: an ordinary flight from here
 
     def _request_streams(self):
+        v = self.v
         rate = self.m.controller.rate_hz
         wanted = [(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, rate), (M.MAVLINK_MSG_ID_ATTITUDE, rate),
                   (M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 10.0)]
-        if self.bundled and self.seq.debug_vect:
+        if v.bundled and v.seq.debug_vect:
             wanted.append((M.MAVLINK_MSG_ID_DEBUG_VECT, rate))  # the simulator's true disturbance
-        for mid in self.seq.unused_streams:
+        for mid in v.seq.unused_streams:
             wanted.append((mid, 0))  # not used: spare the link
-        # a downward range finder, if the vehicle has one (mavadrc.flight.rangefinder): PX4 streams it
-        # on its onboard link by itself, ArduPilot when asked; a vehicle without one refuses
-        # it or sends nothing, and nothing changes
+        # a downward range finder, if the vehicle has one (mavadrc.flight.rangefinder): PX4
+        # streams it on its onboard link by itself, ArduPilot when asked; a vehicle without one
+        # refuses it or sends nothing, and nothing changes
         optional = {"DISTANCE_SENSOR"}
         wanted.append((M.MAVLINK_MSG_ID_DISTANCE_SENSOR, min(rate, RANGE_HZ)))
-        truth = self.seq.truth_message
+        truth = v.seq.truth_message
         if truth is not None:
-            # a simulator's true state, to measure the flight against (mavadrc.flight.truth); a real
-            # vehicle refuses it or sends none, and nothing changes
+            # a simulator's true state, to measure the flight against (mavadrc.flight.truth); a
+            # real vehicle refuses it or sends none, and nothing changes
             wanted.append((getattr(M, "MAVLINK_MSG_ID_" + truth), min(rate, TRUTH_HZ)))
             optional.add(truth)
-            self.truth = TruthTrack(truth, table=self.rec.truth_table)
-        self.streams = {}
+            self.tracks.truth = TruthTrack(truth, table=self.rec.truth_table)
+        v.streams = {}
         tries = STREAM_TRIES
         for mid, hz in wanted:
             result = self.link.set_rate(mid, hz, tries=tries)
@@ -200,27 +228,28 @@ class Preflight:
             # the rest fewer times; any answer restores the full count
             tries = STREAM_TRIES_UNANSWERED if result == TIMEOUT else STREAM_TRIES
             name = M.mavlink_map[mid].msgname if mid in M.mavlink_map else str(mid)
-            self.streams[name] = result_name(result)
+            v.streams[name] = result_name(result)
             if result != M.MAV_RESULT_ACCEPTED and hz > 0 and name not in optional:
-                self.say(f"the vehicle answered {result_name(result)} to {name} at {hz:g} Hz")
+                self.notices.say(f"the vehicle answered {result_name(result)} to {name} at "
+                                 f"{hz:g} Hz")
 
-    def _ph_measure(self, s):
-        if self._phase_t0 is None:
-            self._phase_t0 = s.t
-            self._start_reference(s)
-        if self.takeover_in_air:
-            self._control_step(s, None, hold=True)
+    def measure_phase(self, s):
+        if self.clock.t0 is None:
+            self.clock.t0 = s.t
+            self.takeoff.start_reference(s)
+        if self.v.takeover_in_air:
+            self.steering.step(s, None, hold=True)
         else:
-            self._idle(s)
+            self.setpoints.idle(s.t, self.v.yaw)
         if self.gate.span < MEASURE_S or self.gate.received < 5:
             return
         self._judge_rate()
         why = self.link.sources_text()
         if why is not None:
             raise FlightError(f"{why}: not flying")
-        self._cmd = self.seq.request_control(self.link)
-        self._cmd_tries = 1
-        self._enter("mode", s)
+        self.confirm.cmd = self.v.seq.request_control(self.link)
+        self.confirm.tries = 1
+        self.clock.enter("mode", s)
 
     def _judge_rate(self):
         """The rate the samples come at, against the one asked for.  Samples lost on the link
@@ -228,6 +257,7 @@ class Preflight:
         the stream's rate as it is: the steps are timed by the vehicle across the gaps.  A
         vehicle that sends slower than asked is flown at the rate it sends, and said so.  Below
         ``safety.min_rate_hz`` the flight is refused."""
+        c, sources, say = self.choice, self.v.sources, self.notices.say
         asked = self.m.controller.rate_hz
         got = self.gate.achieved_rate()
         lost = self.link.frame_loss()
@@ -245,20 +275,18 @@ class Preflight:
             raise FlightError(f"{seen}, where {asked:g} Hz was asked: below safety.min_rate_hz "
                               f"{self.m.safety.min_rate_hz:g}, not flying")
         if stream >= RATE_OK * asked:
-            self.sources["rate"] = f"{asked:g} Hz asked, {got:.1f} Hz measured"
+            sources["rate"] = f"{asked:g} Hz asked, {got:.1f} Hz measured"
             if got < RATE_OK * asked:
-                self.sources["rate"] = f"{asked:g} Hz asked; {seen}"
-                self.say(f"warning: {seen}: flying at {asked:g} Hz, each step timed by the "
-                         "vehicle")
-                self.warnings.append(self.sources["rate"])
+                sources["rate"] = f"{asked:g} Hz asked; {seen}"
+                say(f"warning: {seen}: flying at {asked:g} Hz, each step timed by the vehicle")
+                self.notices.warnings.append(sources["rate"])
             return
-        self.rate = round(stream, 1)
-        self.h = 1.0 / self.rate
-        self.ctrl = self._make_controller(self.hover)
-        self.gate.restart(self.h)
-        self.sources["rate"] = (f"{asked:g} Hz asked; {seen}: the vehicle sends about "
-                                f"{stream:.1f} Hz, flying at {self.rate:g} Hz, each step timed "
-                                "by the vehicle")
-        self.say(f"warning: the vehicle sends about {stream:.1f} Hz, not the {asked:g} Hz "
-                 f"asked ({seen}): flying the controller at {self.rate:g} Hz")
-        self.warnings.append(self.sources["rate"])
+        c.set_rate(round(stream, 1))
+        c.make(c.hover)
+        self.gate.restart(c.h)
+        sources["rate"] = (f"{asked:g} Hz asked; {seen}: the vehicle sends about "
+                           f"{stream:.1f} Hz, flying at {c.rate:g} Hz, each step timed "
+                           "by the vehicle")
+        say(f"warning: the vehicle sends about {stream:.1f} Hz, not the {asked:g} Hz "
+            f"asked ({seen}): flying the controller at {c.rate:g} Hz")
+        self.notices.warnings.append(sources["rate"])

@@ -105,16 +105,19 @@ class Sequence:
     def mode_name(self, custom_mode):
         return mode_name(self.name, custom_mode)
 
-    def preflight(self, flight):
-        """Checks and settings before the setpoint stream (and a lockstep clock) starts."""
+    def preflight(self, link, safety, say, read_param, sources):
+        """Checks and settings before the setpoint stream (and a lockstep clock) starts, on
+        ``link``, as the mission's ``safety`` allows; ``say`` tells the user, ``read_param``
+        reads a parameter with a default, ``sources`` keeps where a setting came from."""
 
     def release(self, link):
         """After the flight, disarmed: out of the setpoint mode (into the hold mode, as
         MAVSDK's offboard.stop() does), so the next companion does not find it taken."""
         return self.request_hold(link)
 
-    def thrust_factor(self, flight):
-        """What the autopilot multiplies the thrust we send by, to be divided out (1: none)."""
+    def thrust_factor(self, cos_tilt):
+        """What the autopilot multiplies the thrust we send by, to be divided out (1: none),
+        the vehicle tilted by the angle of cosine ``cos_tilt``."""
         return 1.0
 
 
@@ -203,11 +206,10 @@ class ArduPilotSequence(Sequence):
     def is_landing(self, heartbeat):
         return heartbeat.custom_mode in (AP_LAND, AP_RTL, AP_SMART_RTL)
 
-    def preflight(self, flight):
-        link = flight.link
+    def preflight(self, link, safety, say, read_param, sources):
         opts = int(link.param_read("GUID_OPTIONS"))
         if not opts & 8:
-            if not flight.m.safety.set_guid_options:
+            if not safety.set_guid_options:
                 raise FlightError(
                     "ArduPilot's GUID_OPTIONS bit 3 is clear, so SET_ATTITUDE_TARGET thrust "
                     "would be read as a climb rate, not thrust; set GUID_OPTIONS |= 8 on the "
@@ -216,20 +218,20 @@ class ArduPilotSequence(Sequence):
             got = int(link.param_set("GUID_OPTIONS", opts | 8, M.MAV_PARAM_TYPE_INT32))
             if not got & 8:
                 raise FlightError("the vehicle did not accept GUID_OPTIONS bit 3")
-            flight.console.say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
+            say(f"set GUID_OPTIONS to {got} (thrust means thrust)")
         # GUIDED multiplies the thrust it is sent by 1/cos(lean angle) when ATC_ANGLE_BOOST is
         # on (AC_AttitudeControl_Multi::get_throttle_boosted)
-        boost = flight.read_param("ATC_ANGLE_BOOST", 1.0)
+        boost = read_param("ATC_ANGLE_BOOST", 1.0)
         self.angle_boost = bool(boost)
-        flight.sources["angle_boost"] = (
+        sources["angle_boost"] = (
             f"ATC_ANGLE_BOOST {int(boost)}: thrust sent x cos(lean angle)" if self.angle_boost
             else "ATC_ANGLE_BOOST 0: thrust sent as computed")
 
-    def thrust_factor(self, flight):
+    def thrust_factor(self, cos_tilt):
         if not self.angle_boost:
             return 1.0
         # ArduCopter divides by cos of the current lean angle, clamped at 0.1
-        return max(0.1, flight.cos_tilt)
+        return max(0.1, cos_tilt)
 
 
 def sequence_for(autopilot):
