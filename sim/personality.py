@@ -24,9 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mavadrc.control.geometry import GRAVITY
 from mavadrc.control.rotations import euler_from_quat, level_quat
-
-from .physics import GRAVITY
 
 log = logging.getLogger("mavadrc.sitl")
 
