@@ -48,6 +48,7 @@ __all__ = [
     "resolve_wind", "response_time_constants", "vehicle_variant",
 ]
 
+
 @jit
 def advance(x, xm, fs, fp, S, P, W, mx, sp, omega, wk, pv, v_wind, f_ext, tau_ext, dt, n, tick,
             att_div, pos_div, pos_dt):
