@@ -17,9 +17,9 @@ from numba import njit, prange
 
 from . import physics as phys
 from .firmware import attitude as A
-from .vehicle import (IGNORE_ATTITUDE, IGNORE_PITCH_RATE, IGNORE_ROLL_RATE, IGNORE_THRUST,
-                      IGNORE_YAW_RATE, Firmware, advance, child_seeds, resolve_vehicle,
-                      resolve_wind)
+from .flight_modes import (IGNORE_ATTITUDE, IGNORE_PITCH_RATE, IGNORE_ROLL_RATE, IGNORE_THRUST,
+                           IGNORE_YAW_RATE)
+from .vehicle import Firmware, advance, child_seeds, resolve_vehicle, resolve_wind
 from .wind import Wind
 
 

@@ -32,10 +32,11 @@ from mavadrc.control._jit import jit
 from .firmware import position as PL
 from .vehicle import advance
 
-#: the kernel arrays of a SimVehicle that become rows of the fleet's arrays
-ROW_ARRAYS = ("_x", "_fs", "_S", "_W", "_sp", "_omega", "_wk", "_v_wind", "_f_ext", "_tau_ext")
+#: the kernel arrays of a SimVehicle (its :class:`sim.kernel_state.KernelState`) that become
+#: rows of the fleet's arrays
+ROW_ARRAYS = ("x", "fs", "S", "W", "sp", "omega", "wk", "v_wind", "f_ext", "tau_ext")
 #: the arrays every vehicle of a fleet must share (same vehicle, same firmware settings)
-SHARED = (("fw", "fp"), ("fw", "P"), ("fw", "mx"), (None, "_pv"))
+SHARED = (("fw", "fp"), ("fw", "P"), ("fw", "mx"), ("kernel", "pv"))
 
 
 @jit
@@ -50,7 +51,7 @@ def advance_rows(rows, X, FS, fp, S, P, W, mx, SP, OMEGA, WK, pv, V, F, T, dt, n
 
 
 def _shared(vehicle, owner, name):
-    return getattr(vehicle if owner is None else getattr(vehicle, owner), name)
+    return getattr(getattr(vehicle, owner), name)
 
 
 class VehicleRows:
@@ -72,25 +73,22 @@ class VehicleRows:
         n = len(self.vehicles)
         self.arrays = []
         for name in ROW_ARRAYS:
-            a = getattr(first, name)
+            a = getattr(first.kernel, name)
             big = np.empty((n,) + a.shape)
             for i, v in enumerate(self.vehicles):
-                own = getattr(v, name)
-                big[i] = own
-                if name == "_x" and v._xr is own:
-                    v._xr = big[i]
-                setattr(v, name, big[i])
+                big[i] = getattr(v.kernel, name)
+                setattr(v.kernel, name, big[i])
             self.arrays.append(big)
         self._fw = first.fw
-        self._pv = first._pv
+        self._pv = first.kernel.pv
         self.batched = 0  # vehicle-steps taken by the batch path (for tests and benchmarks)
 
     @staticmethod
     def batchable(v):
         """The vehicle's next step is the kernel alone: attitude setpoints or idle, no wind,
         no sensor model, and no landing or automatic disarm that the mode logic could end."""
-        return (v.sensors is None and v.wind is None and v._mode not in PL.Navigator.MODES
-                and (v._landed_at is None or v.auto_disarm_s is None or not v.armed))
+        return (v.sensors is None and v.wind is None and v.mode not in PL.Navigator.MODES
+                and (v.modes.landed_at is None or v.auto_disarm_s is None or not v.armed))
 
     def step(self, dt):
         """Advance every vehicle by dt (as :meth:`sim.vehicle.SimVehicle.step` does)."""
@@ -104,17 +102,18 @@ class VehicleRows:
             if not self.batchable(v) or v.fw.thrust_model_factor != fw.thrust_model_factor:
                 v.step(dt)
                 continue
-            v._target_time += float(dt)
-            end = int(math.floor(v._target_time / v.physics_dt + 1e-6))
-            if end > v._tick:
-                groups.setdefault((v._tick, end), []).append(i)
+            ks = v.kernel
+            ks.target_time += float(dt)
+            end = int(math.floor(ks.target_time / v.physics_dt + 1e-6))
+            if end > ks.tick:
+                groups.setdefault((ks.tick, end), []).append(i)
         X, FS, S, W, SP, OMEGA, WK, V, F, T = self.arrays
         for (tick, end), rows in groups.items():
             advance_rows(np.array(rows, dtype=np.int64), X, FS, fw.fp, S, fw.P, W, fw.mx, SP,
                          OMEGA, WK, self._pv, V, F, T, self.vehicles[rows[0]].physics_dt,
                          end - tick, tick, fw.att_div, fw.pos_div, fw.pos_dt)
             for i in rows:
-                self.vehicles[i]._tick = end
+                self.vehicles[i].kernel.tick = end
             self.batched += len(rows) * (end - tick)
 
 

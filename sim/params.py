@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from mavadrc.control.geometry import GRAVITY
 from sim.yamlio import ConfigError, Section, config_path, load_yaml
 
 __all__ = [
@@ -51,11 +52,6 @@ P_ROTOR_DIR = 30      # 4 values
 P_SIZE = 34
 
 LAYOUTS = ("plus", "x")
-
-
-def _gravity() -> float:
-    from sim.physics import GRAVITY  # physics imports this module; keep one constant there
-    return GRAVITY
 
 
 @dataclass
@@ -111,7 +107,7 @@ class VehicleParams:
 
     @property
     def weight(self) -> float:
-        return self.mass * _gravity()
+        return self.mass * GRAVITY
 
     @property
     def max_thrust(self) -> float:
@@ -220,7 +216,7 @@ def physical_problems(v: dict[str, Any]) -> list[tuple[str, str]]:
         out.append(("omega_min", f"must be < omega_max = {v['omega_max']} "
                                  f"(got {v['omega_min']})"))
     if ok:
-        weight = v["mass"] * _gravity()
+        weight = v["mass"] * GRAVITY
         tw = 4.0 * v["k_f"] * v["omega_max"] ** 2 / weight
         if tw < 1.0:
             out.append(("omega_max", f"thrust-to-weight 4*k_f*omega_max^2/(mass*g) = {tw:.3f} "

@@ -37,6 +37,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from mavadrc.control.geometry import GRAVITY  # defined once, where the control maps use it
 from mavadrc.control.rotations import quat_from_euler
 from sim.params import (P_DRAG_LIN, P_DRAG_QUAD, P_IXX, P_IYY, P_IZZ, P_KF, P_KM, P_MASS,
                         P_OMEGA_MAX, P_OMEGA_MIN, P_ROTOR_DIR, P_ROTOR_DRAG, P_ROTOR_INERTIA,
@@ -47,8 +48,6 @@ __all__ = [
     "derivatives", "step", "step_n", "step_batch",
     "initial_state",
 ]
-
-GRAVITY = 9.80665
 
 IX_POS = 0
 IX_VEL = 3

@@ -24,40 +24,29 @@ import numpy as np
 
 from mavadrc.control import geometry as G
 from mavadrc.control._jit import jit
-from mavadrc.control.rotations import level_quat, quat_to_euler
 
 from . import physics as phys
 from .firmware import attitude as A
 from .firmware import position as PL
 from .firmware.mixer import Mixer, curve_mismatch, hover_command
+from .flight_modes import (IGNORE_ATTITUDE, IGNORE_PITCH_RATE, IGNORE_ROLL_RATE, IGNORE_THRUST,
+                           IGNORE_YAW_RATE, MODES, CommandRejected, FlightModes)
+from .kernel_state import KernelState
 from .params import VehicleParams, load_vehicle
-from .sensors import NNOISE, Sensors, measure_into
+from .reporting import (GROUND_CLIMB_DECAY_S, GROUND_CLIMB_FLOWN_M, GROUND_CLIMB_HOLD_S,
+                        GROUND_CLIMB_REST_M, Reported, Reporting)
+from .sensors import Sensors, measure_into
 from .wind import WIND_SCRATCH, Wind, load_wind, pack_wind, wind_step_packed
 
-MODES = ("attitude", "position", "takeoff", "hold", "land", "idle")
-
-# SET_ATTITUDE_TARGET type_mask bits
-IGNORE_ROLL_RATE = 1
-IGNORE_PITCH_RATE = 2
-IGNORE_YAW_RATE = 4
-IGNORE_THRUST = 64
-IGNORE_ATTITUDE = 128
-
-
-class CommandRejected(RuntimeError):
-    """The vehicle refuses a command in its current state (MAVLink: MAV_RESULT_DENIED)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Reported:
-    """The vehicle's state as its sensors report it (NED, body FRD, SI units, radians)."""
-
-    time: float
-    position: np.ndarray
-    velocity: np.ndarray
-    quaternion: np.ndarray
-    euler: np.ndarray
-    rates: np.ndarray
+# the flight modes' and the sensor side's names are imported from here too (their old home)
+__all__ = [
+    "SimVehicle", "Firmware", "Reported", "CommandRejected", "MODES", "IGNORE_ROLL_RATE",
+    "IGNORE_PITCH_RATE", "IGNORE_YAW_RATE", "IGNORE_THRUST", "IGNORE_ATTITUDE",
+    "GROUND_CLIMB_HOLD_S", "GROUND_CLIMB_DECAY_S", "GROUND_CLIMB_FLOWN_M", "GROUND_CLIMB_REST_M",
+    "RANDOM_HEADING", "advance", "advance_wind", "advance_wind_into", "advance_wind_measured_into",
+    "child_seeds", "divider", "initial_heading", "parse_heading", "resolve_vehicle",
+    "resolve_wind", "response_time_constants", "vehicle_variant",
+]
 
 
 @jit
@@ -126,15 +115,6 @@ def child_seeds(seed, n=2):
 
 #: ``yaw`` (rad) that asks :class:`SimVehicle` for an initial heading drawn from its seed
 RANDOM_HEADING = math.nan
-#: ``ground_climb_mps``: the shape of the climb the estimate reads after the vehicle comes to
-#: rest on the ground, as PX4 SIH's EKF2 read it (0.35-0.4 m/s for 4 s, then dying away with a
-#: 4 s time constant, 1.2 m in all, while SIH's truth sat still): held this long (s) ...
-GROUND_CLIMB_HOLD_S = 4.0
-#: ... then decaying with this time constant (s)
-GROUND_CLIMB_DECAY_S = 4.0
-#: the vehicle has flown once it was this high (m), and is at rest within this of the ground
-GROUND_CLIMB_FLOWN_M = 0.5
-GROUND_CLIMB_REST_M = 0.005
 
 
 def initial_heading(yaw, seed):
@@ -263,6 +243,66 @@ class Firmware:
         self.fp[A.FP_LD + PL.LD_THRUST] = self.land_thrust * self.hover_thrust
 
 
+def _part_attribute(part, name, doc, settable=True):
+    """An attribute of :class:`SimVehicle` that its part ``part`` keeps, read (and assigned)
+    through."""
+    def get(self):
+        return getattr(getattr(self, part), name)
+
+    def put(self, value):
+        setattr(getattr(self, part), name, value)
+
+    return property(get, put if settable else None, doc=doc)
+
+
+def run_steps(ks, end, fw, rep, modes, wind, packed):
+    """Step the vehicle whose kernel state is ``ks`` up to physics step ``end``: at each
+    position-loop tick its flight modes (``modes``), between ticks the compiled kernels with its
+    firmware ``fw``, its wind (``wind``; ``packed``: its compiled form, or None) and its sensor
+    side (``rep``), step by step where only Python can sample them."""
+    sensed = rep.sensors is not None
+    # a sensor model without report latency reads every step in the compiled loop, its noise
+    # drawn ahead for the steps up to the next position-loop tick
+    measured = packed is not None and sensed and rep.report is None
+    per_step = ((wind is not None and packed is None) or sensed) and not measured
+    while ks.tick < end:
+        tick = ks.tick
+        if per_step or measured:
+            rep.measure(ks)
+        if tick % fw.pos_div == 0:
+            modes.outer()
+        n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
+        if measured:
+            est = rep.estimate
+            advance_wind_measured_into(
+                ks.x, rep.xm, ks.fs, fw.fp, ks.S, fw.P, ks.W, fw.mx, ks.sp, ks.omega, ks.wk,
+                ks.pv, packed.params, packed.state, packed.normals(n), est.draws(n),
+                est.sigmas(), ks.v_wind, ks.f_ext, ks.tau_ext, ks.physics_dt, n, tick,
+                fw.att_div, fw.pos_div, fw.pos_dt, ks.scratch, ks.ws)
+            ks.tick += n
+            rep.measured_tick = ks.tick
+            continue
+        if packed is not None:
+            advance_wind(ks.x, rep.firmware_input(ks), ks.fs, fw.fp, ks.S, fw.P, ks.W, fw.mx,
+                         ks.sp, ks.omega, ks.wk, ks.pv, packed.params, packed.state,
+                         packed.normals(n), ks.v_wind, ks.f_ext, ks.tau_ext, ks.physics_dt,
+                         n, tick, fw.att_div, fw.pos_div, fw.pos_dt)
+            ks.tick += n
+            continue
+        if wind is not None:
+            t = tick * ks.physics_dt
+            v, f, tau = wind.step(t, ks.physics_dt, ks.x[0:3], ks.x[3:6])
+            ks.v_wind[:] = v
+            ks.f_ext[:] = f
+            ks.tau_ext[:] = tau
+        advance(ks.x, rep.firmware_input(ks), ks.fs, fw.fp, ks.S, fw.P, ks.W, fw.mx, ks.sp,
+                ks.omega, ks.wk, ks.pv, ks.v_wind, ks.f_ext, ks.tau_ext, ks.physics_dt, n,
+                tick, fw.att_div, fw.pos_div, fw.pos_dt)
+        ks.tick += n
+    if per_step:
+        rep.measure(ks)  # what is reported after the step is of its end, not a tick before
+
+
 class SimVehicle:
     """A simulated multirotor with a PX4-like autopilot, stepped in process.
 
@@ -283,6 +323,11 @@ class SimVehicle:
     heading drawn from the seed, :func:`initial_heading`); above the ground the vehicle starts
     flying with its rotors at hover speed (disarmed until ``arm()``).  ``auto_disarm_s``: after a
     ``land()`` touches down, disarm this long after (None: stay armed at idle).
+
+    Its parts, each handed what it works on: ``kernel`` (:class:`sim.kernel_state.KernelState`),
+    the arrays the compiled kernels step; ``fw`` (:class:`Firmware`), the firmware's parameters;
+    ``reporting`` (:class:`sim.reporting.Reporting`), the sensor side; ``modes``
+    (:class:`sim.flight_modes.FlightModes`), the flight modes with the navigator ``nav``.
     """
 
     def __init__(self, vehicle="crazyflie", wind=None, seed=0, sensors=None,
@@ -291,19 +336,16 @@ class SimVehicle:
                  attitude_gains=None, position_options=None, position=(0.0, 0.0, 0.0), yaw=0.0,
                  auto_disarm_s=2.0, thrust_model_factor=0.0, height_drift_mps=0.0,
                  ground_climb_mps=0.0, rangefinder=False):
-        self.params = resolve_vehicle(vehicle)
+        self.params = vp = resolve_vehicle(vehicle)
         # a downward range finder (DISTANCE_SENSOR), measuring the true height above the ground
         # as PX4 SIH's does (simulator_sih: -z / cos(tilt), no noise)
         self.rangefinder = bool(rangefinder)
-        self.height_drift_mps = float(height_drift_mps)
-        if not math.isfinite(self.height_drift_mps):
+        drift = float(height_drift_mps)
+        if not math.isfinite(drift):
             raise ValueError(f"height_drift_mps must be finite (got {height_drift_mps!r})")
-        self.ground_climb_mps = float(ground_climb_mps)
-        if not (math.isfinite(self.ground_climb_mps) and self.ground_climb_mps >= 0.0):
+        climb = float(ground_climb_mps)
+        if not (math.isfinite(climb) and climb >= 0.0):
             raise ValueError(f"ground_climb_mps must be >= 0 (got {ground_climb_mps!r})")
-        self._flown = False
-        self._rest_t = None  # when the vehicle, having flown, first came to rest on the ground
-        vp = self.params
         self.physics_dt = float(physics_dt)
         if not (math.isfinite(self.physics_dt) and self.physics_dt > 0.0):
             raise ValueError(f"physics_dt must be > 0 (got {physics_dt!r})")
@@ -314,16 +356,7 @@ class SimVehicle:
         self.wind = resolve_wind(wind, wind_seed)
         if isinstance(sensors, dict):
             sensors = Sensors(**sensors, seed=sensor_seed)
-        self.sensors = sensors
-        self._estimate = self._report = None
-        if sensors is not None:
-            # the firmware flies on the noisy estimate at once; the latency is the report path's
-            self._estimate = Sensors(noise=sensors.noise, seed=sensor_seed,
-                                     wander=sensors.wander,
-                                     wander_corner_hz=sensors.wander_corner_hz,
-                                     dt=self.physics_dt)
-            if sensors.latency_s > 0.0:
-                self._report = Sensors(latency_s=sensors.latency_s)
+        self.reporting = Reporting(sensors, sensor_seed, self.physics_dt, drift, climb)
         self.fw = Firmware(vp, attitude_controller=attitude_controller,
                            physics_dt=self.physics_dt, attitude_rate_hz=attitude_rate_hz,
                            position_rate_hz=position_rate_hz, max_thrust=max_thrust,
@@ -332,37 +365,12 @@ class SimVehicle:
         self.attitude_controller = attitude_controller
         self.nav = PL.Navigator(h=self.fw.pos_dt, hover_thrust=self.fw.hover_thrust,
                                 **dict(position_options or {}))
-        self.auto_disarm_s = auto_disarm_s
-        self._pv = vp.pack()
         pos = np.asarray(position, dtype=float)
-        airborne = pos[2] < 0.0
         self.initial_yaw = initial_heading(yaw, seed)
-        self._x = phys.initial_state(pos, self.initial_yaw, vp.hover_omega if airborne else 0.0)
-        self._xm = self._x.copy()
-        self._xr = self._x
-        self._measured_tick = None
-        self._estimate_outside = False
-        self._fs = np.zeros(A.NFS)
-        self._fs[A.FS_LANDED] = 0.0 if airborne else 1.0
-        self._fs[A.FS_OMEGA:A.FS_OMEGA + 4] = self._x[phys.IX_ROT:phys.IX_ROT + 4]
-        self._S = np.zeros((3, self.fw.P.shape[1]))
-        self._W = np.zeros(2)
-        self._sp = np.zeros(A.NSP)
-        self._sp[A.SP_Q:A.SP_Q + 4] = self._x[phys.IX_Q:phys.IX_Q + 4]
-        self._sp[A.SP_ATT_VALID] = 1.0
-        self._omega = np.zeros(4)
-        self._wk = np.zeros(A.NWK)
-        self._scratch = np.empty(WIND_SCRATCH)
-        self._ws = np.empty((5, phys.NX))
-        self._v_wind = np.zeros(3)
-        self._f_ext = np.zeros(3)
-        self._tau_ext = np.zeros(3)
-        self._tick = 0
-        self._target_time = 0.0
-        self._mode = "idle"
-        self._landed_at = None
-        self.home = pos.copy()
-        self._measure()
+        self.kernel = KernelState(vp, self.fw, pos, self.initial_yaw, self.physics_dt)
+        self.modes = FlightModes(self.kernel, self.nav, self.reporting, home=pos.copy(),
+                                 auto_disarm_s=auto_disarm_s)
+        self.reporting.measure(self.kernel)
 
     # -- read-outs -------------------------------------------------------------------------------
     @property
@@ -376,27 +384,38 @@ class SimVehicle:
         self._wind = model
         self._packed = pack_wind(model)
 
+    sensors = _part_attribute("reporting", "sensors", """The sensor model (a
+        :class:`sim.sensors.Sensors`) or None (truth).""", settable=False)
+    height_drift_mps = _part_attribute("reporting", "height_drift_mps", """m/s the reported
+        height drifts up by (a barometer's drift); the vehicle flies on the truth as before.""")
+    ground_climb_mps = _part_attribute("reporting", "ground_climb_mps", """m/s of the climb the
+        estimate reads once the vehicle, having flown, rests on the ground (0: none).""")
+    auto_disarm_s = _part_attribute("modes", "auto_disarm_s", """s after a ``land()`` touches
+        down that the vehicle disarms (None: it stays armed at idle).""")
+    home = _part_attribute("modes", "home", """Where (NED) the vehicle was last armed on the
+        ground; a takeoff's altitude is above it.""")
+
     @property
     def time(self):
         """Seconds since boot (simulated)."""
-        return self._tick * self.physics_dt
+        return self.kernel.time
 
     @property
     def state(self):
         """Copy of the true state x (17): position, velocity, quaternion, body rates, rotors."""
-        return self._x.copy()
+        return self.kernel.x.copy()
 
     @property
     def armed(self):
-        return self._fs[A.FS_ARMED] != 0.0
+        return self.kernel.armed
 
     @property
     def landed(self):
-        return self._fs[A.FS_LANDED] != 0.0
+        return self.kernel.landed
 
     @property
     def mode(self):
-        return self._mode
+        return self.modes.mode
 
     @property
     def hover_thrust(self):
@@ -423,35 +442,34 @@ class SimVehicle:
     @property
     def rotor_commands(self):
         """Rotor speed commands of the last firmware step (rad/s)."""
-        return self._omega.copy()
+        return self.kernel.omega.copy()
 
     @property
     def wrench(self):
         """[T, tau_x, tau_y, tau_z] the mixer achieved in the last firmware step (N, N m)."""
-        return self._fs[A.FS_WRENCH:A.FS_WRENCH + 4].copy()
+        return self.kernel.fs[A.FS_WRENCH:A.FS_WRENCH + 4].copy()
 
     @property
     def attitude_setpoint(self):
         """(quaternion, normalized thrust) the inner loop is tracking."""
-        return self._sp[A.SP_Q:A.SP_Q + 4].copy(), float(self._sp[A.SP_THRUST])
+        sp = self.kernel.sp
+        return sp[A.SP_Q:A.SP_Q + 4].copy(), float(sp[A.SP_THRUST])
 
     @property
     def wind_velocity(self):
         """Air velocity at the vehicle over the last physics step (NED, m/s)."""
-        return self._v_wind.copy()
+        return self.kernel.v_wind.copy()
 
     @property
     def observer(self):
         """(3, 3) Euler-channel observer estimates z1, z2, z3 per axis (ladrc/adrc kinds)."""
-        return self._S[:, 0:3].copy()
+        return self.kernel.S[:, 0:3].copy()
 
     # -- the compiled kernels' view, for callers that run whole loops of them ---------------------
     def kernel_state(self):
         """The arrays :func:`advance_wind` steps, in its argument order (x .. pv): state, firmware
         state and parameters, setpoint, rotor commands, scratch, vehicle parameters."""
-        fw = self.fw
-        return (self._x, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp, self._omega,
-                self._wk, self._pv)
+        return self.kernel.firmware_arrays(self.fw)
 
     def kernel_wind(self):
         """(packed wind, (v_wind, f_ext, tau_ext) output arrays) for :func:`advance_wind`; the
@@ -462,7 +480,8 @@ class SimVehicle:
             if self.wind is not None:
                 raise ValueError("this wind has no compiled form (sim.wind.pack_wind)")
             packed = pack_wind(Wind())
-        return packed, (self._v_wind, self._f_ext, self._tau_ext)
+        ks = self.kernel
+        return packed, (ks.v_wind, ks.f_ext, ks.tau_ext)
 
     def kernel_sensors(self, ticks):
         """(xm, noise, sigmas) for a caller that runs the next ``ticks`` physics steps on
@@ -472,67 +491,26 @@ class SimVehicle:
         noise is taken now from the sensor model's own stream (:meth:`sim.sensors.Sensors.draws`),
         so it goes on where the vehicle's steps left it.  The sensor latency is the caller's to
         model.  Without noise: (the true state itself, no rows, zero sigmas)."""
-        if self._estimate is None or not self._estimate.active:
-            return self._x, np.zeros((0, NNOISE)), np.zeros(4)
-        self._measure()
-        self._estimate_outside = True  # ran() takes the estimate as of its tick
-        return self._xm, self._estimate.draws(ticks), self._estimate.sigmas()
+        return self.reporting.kernel_sensors(self.kernel, ticks)
 
     @property
     def tick(self):
         """Physics steps since boot."""
-        return self._tick
+        return self.kernel.tick
 
     def ran(self, ticks):
         """Account for ``ticks`` physics steps a caller ran on :meth:`kernel_state` itself with
         attitude setpoints (the vehicle is in attitude mode afterwards)."""
-        self._tick += int(ticks)
-        self._target_time = self._tick * self.physics_dt
-        self._mode = "attitude"
-        if self._estimate_outside:  # kernel_sensors' estimate was read of every step
-            self._measured_tick = self._tick
-            self._xr = self._xm if self._report is None else self._report.measure(self.time,
-                                                                                  self._xm)
+        ks = self.kernel
+        ks.tick += int(ticks)
+        ks.target_time = ks.tick * self.physics_dt
+        self.modes.mode = "attitude"
+        self.reporting.ran(ks)
 
     def reported(self):
         """The state as the vehicle reports it: truth, or with a sensor model the firmware's
         noisy estimate as of the last physics step, delayed by the model's latency."""
-        y = self._xr if self.sensors is not None else self._x
-        q = y[phys.IX_Q:phys.IX_Q + 4].copy()
-        e = np.empty(3)
-        quat_to_euler(q, e)
-        pos = y[0:3].copy()
-        if self.height_drift_mps:
-            # a height estimate that drifts (a barometer's): it reads higher by this much each
-            # second; the vehicle's own controllers fly on the truth or their estimate as before
-            pos[2] -= self.height_drift_mps * self.time
-        vel = y[3:6].copy()
-        if self.ground_climb_mps:
-            self._ground_climb(pos, vel)
-        return Reported(self.time, pos, vel, q, e,
-                        y[phys.IX_W:phys.IX_W + 3].copy())
-
-    def _ground_climb(self, pos, vel):
-        """``ground_climb_mps``: from the first rest on the ground after a flight the estimate
-        reads a climb (up: NED z falling) of that speed, held GROUND_CLIMB_HOLD_S, then dying
-        away in GROUND_CLIMB_DECAY_S; the height it gained stays.  The truth, and the vehicle's
-        own controllers, are untouched.  Judged on the true state each time the state is read."""
-        z = float(self._x[2])
-        if z < -GROUND_CLIMB_FLOWN_M:
-            self._flown = True
-        if self._flown and self._rest_t is None and z >= -GROUND_CLIMB_REST_M:
-            self._rest_t = self.time
-        if self._rest_t is None:
-            return
-        a, hold, tau = self.time - self._rest_t, GROUND_CLIMB_HOLD_S, GROUND_CLIMB_DECAY_S
-        v = self.ground_climb_mps
-        if a <= hold:
-            rise, speed = v * a, v
-        else:
-            e = math.exp(-(a - hold) / tau)
-            rise, speed = v * (hold + tau * (1.0 - e)), v * e
-        pos[2] -= rise
-        vel[2] -= speed
+        return self.reporting.reported(self.kernel)
 
     def true_disturbance(self):
         """Acceleration (NED, m/s^2) the environment adds beyond rotor thrust and gravity.
@@ -541,30 +519,17 @@ class SimVehicle:
         direct wind forces, divided by the mass, at the current state with the wind of the last
         step.  This is what a position-loop observer's disturbance estimate should approach.
         """
+        ks = self.kernel
         a = np.empty(3)
-        phys.disturbance_accel(self._x, self._omega, self._pv, self._v_wind, self._f_ext,
-                               self._tau_ext, a)
+        phys.disturbance_accel(ks.x, ks.omega, ks.pv, ks.v_wind, ks.f_ext, ks.tau_ext, a)
         return a
 
-    # -- commands --------------------------------------------------------------------------------
+    # -- commands (:class:`sim.flight_modes.FlightModes`) ----------------------------------------
     def arm(self):
-        if self.armed:
-            return
-        self._fs[A.FS_ARMED] = 1.0
-        self.nav.reset()
-        if self.landed:
-            self.home = self._x[0:3].copy()
-        if self._mode not in ("attitude", "position"):
-            self._set_idle()
+        self.modes.arm()
 
     def disarm(self, force=False):
-        if not self.armed:
-            return
-        if not self.landed and not force:
-            raise CommandRejected("disarm refused: the vehicle is flying (use force=True)")
-        self._fs[A.FS_ARMED] = 0.0
-        self._landed_at = None
-        self._mode = "idle"
+        self.modes.disarm(force)
 
     def set_attitude_target(self, q, thrust, body_rates=None, type_mask=0):
         """Offboard attitude (quaternion [w, x, y, z] body -> NED) and normalized thrust 0..1.
@@ -573,155 +538,32 @@ class SimVehicle:
         thrust (keep the last), 128 ignore the attitude (body rates only).  With an attitude,
         given rates are feed-forward.
         """
-        sp = self._sp
-        mask = int(type_mask)
-        if not mask & IGNORE_ATTITUDE:
-            qa = np.asarray(q, dtype=float).reshape(4).tolist()
-            n = math.sqrt(qa[0] * qa[0] + qa[1] * qa[1] + qa[2] * qa[2] + qa[3] * qa[3])
-            if not (math.isfinite(n) and n > 1e-6):  # a NaN or inf component makes n so
-                raise ValueError(f"attitude quaternion must be finite and non-zero (got {q!r})")
-            for i in range(4):
-                sp[A.SP_Q + i] = qa[i] / n
-        sp[A.SP_ATT_VALID] = 0.0 if mask & IGNORE_ATTITUDE else 1.0
-        for i, bit in enumerate((IGNORE_ROLL_RATE, IGNORE_PITCH_RATE, IGNORE_YAW_RATE)):
-            given = body_rates is not None and not mask & bit
-            sp[A.SP_RATE_VALID + i] = 1.0 if given else 0.0
-            sp[A.SP_RATES + i] = float(body_rates[i]) if given else 0.0
-            if given and not math.isfinite(sp[A.SP_RATES + i]):
-                raise ValueError(f"body rates must be finite (got {body_rates!r})")
-        if not mask & IGNORE_THRUST:
-            t = float(thrust)
-            if not math.isfinite(t):
-                raise ValueError(f"thrust must be finite (got {thrust!r})")
-            sp[A.SP_THRUST] = min(max(t, 0.0), 1.0)
-        self._mode = "attitude"
+        self.modes.set_attitude_target(q, thrust, body_rates, type_mask)
 
     def set_position_target(self, pos=None, vel=None, acc=None, yaw=None, yaw_rate=None):
         """Offboard position/velocity/acceleration target (NED); None or NaN = ignored."""
-        if pos is None and vel is None and acc is None:
-            raise ValueError("a position target needs at least one of pos, vel, acc")
-        self.nav.set_target(pos, vel, acc, yaw, yaw_rate, yaw_now=self._yaw())
-        self._mode = "position"
+        self.modes.set_position_target(pos, vel, acc, yaw, yaw_rate)
 
     def takeoff(self, altitude):
         """Climb to ``altitude`` m above home, then hold there."""
-        if not self.armed:
-            raise CommandRejected("takeoff refused: disarmed")
-        alt = float(altitude)
-        if not (math.isfinite(alt) and alt > 0.0):
-            raise ValueError(f"takeoff altitude must be > 0 (got {altitude!r})")
-        r = self.reported()
-        self.nav.takeoff(r.position, r.euler[2], self.home[2] - alt)
-        self._landed_at = None
-        self._mode = "takeoff"
+        self.modes.takeoff(altitude)
 
     def land(self, speed=None):
         """Descend where it is to the ground, at the firmware's land speed or ``speed`` (m/s)."""
-        if not self.armed or self.landed:
-            self._set_idle()
-            return
-        r = self.reported()
-        self.nav.land(r.position, r.euler[2], speed)
-        self._mode = "land"
+        self.modes.land(speed)
 
     def hold(self):
-        if not self.armed or self.landed:
-            self._set_idle()
-            return
-        r = self.reported()
-        self.nav.hold(r.position, r.euler[2])
-        self._mode = "hold"
+        self.modes.hold()
 
     # -- simulation ------------------------------------------------------------------------------
     def step(self, dt):
         """Advance the simulation by dt seconds (a whole number of physics steps, rounded)."""
         if not (math.isfinite(dt) and dt >= 0.0):
             raise ValueError(f"dt must be >= 0 (got {dt!r})")
-        self._target_time += float(dt)
-        end = int(math.floor(self._target_time / self.physics_dt + 1e-6))
-        fw = self.fw
-        packed = self._packed
-        # a sensor model without report latency reads every step in the compiled loop, its noise
-        # drawn ahead for the steps up to the next position-loop tick
-        measured = packed is not None and self.sensors is not None and self._report is None
-        per_step = ((self.wind is not None and packed is None) or self.sensors is not None) \
-            and not measured
-        while self._tick < end:
-            tick = self._tick
-            if per_step or measured:
-                self._measure()
-            if tick % fw.pos_div == 0:
-                self._outer()
-            n = 1 if per_step else min(end - tick, fw.pos_div - tick % fw.pos_div)
-            if measured:
-                est = self._estimate
-                advance_wind_measured_into(
-                    self._x, self._xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp,
-                    self._omega, self._wk, self._pv, packed.params, packed.state,
-                    packed.normals(n), est.draws(n), est.sigmas(), self._v_wind, self._f_ext,
-                    self._tau_ext, self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt,
-                    self._scratch, self._ws)
-                self._tick += n
-                self._measured_tick = self._tick
-                continue
-            if packed is not None:
-                xm = self._xm if self.sensors is not None else self._x
-                advance_wind(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx,
-                             self._sp, self._omega, self._wk, self._pv, packed.params,
-                             packed.state, packed.normals(n), self._v_wind, self._f_ext,
-                             self._tau_ext, self.physics_dt, n, tick, fw.att_div, fw.pos_div,
-                             fw.pos_dt)
-                self._tick += n
-                continue
-            if self.wind is not None:
-                t = tick * self.physics_dt
-                v, f, tau = self.wind.step(t, self.physics_dt, self._x[0:3], self._x[3:6])
-                self._v_wind[:] = v
-                self._f_ext[:] = f
-                self._tau_ext[:] = tau
-            xm = self._xm if self.sensors is not None else self._x
-            advance(self._x, xm, self._fs, fw.fp, self._S, fw.P, self._W, fw.mx, self._sp,
-                    self._omega, self._wk, self._pv, self._v_wind, self._f_ext, self._tau_ext,
-                    self.physics_dt, n, tick, fw.att_div, fw.pos_div, fw.pos_dt)
-            self._tick += n
-        if per_step:
-            self._measure()  # what is reported after the step is of its end, not a tick before
-
-    def _measure(self):
-        """The sensor model's reading of the state of this tick (once per tick)."""
-        if self.sensors is not None and self._measured_tick != self._tick:
-            self._measured_tick = self._tick
-            self._xm = self._estimate.measure(self.time, self._x)
-            self._xr = self._xm if self._report is None else self._report.measure(self.time,
-                                                                                  self._xm)
-
-    def _yaw(self):
-        return float(self.reported().euler[2])
-
-    def _set_idle(self):
-        self._sp[A.SP_Q:A.SP_Q + 4] = level_quat(self._yaw())
-        self._sp[A.SP_THRUST] = 0.0
-        self._sp[A.SP_ATT_VALID] = 1.0
-        self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
-        self._mode = "idle"
-
-    def _outer(self):
-        """Position-loop tick: flight-mode logic and, in the navigator's modes, the cascade."""
-        if self._mode == "land" and self.landed:
-            self._set_idle()
-            self._landed_at = self.time
-        if (self._mode == "idle" and self._landed_at is not None and self.armed
-                and self.auto_disarm_s is not None
-                and self.time - self._landed_at >= self.auto_disarm_s - 1e-9):
-            self.disarm()
-        if self._mode in PL.Navigator.MODES:
-            r = self.reported()
-            q, thrust = self.nav.update(r.position, r.velocity, self.landed)
-            self._sp[A.SP_Q:A.SP_Q + 4] = q
-            self._sp[A.SP_THRUST] = thrust
-            self._sp[A.SP_ATT_VALID] = 1.0
-            self._sp[A.SP_RATE_VALID:A.SP_RATE_VALID + 3] = 0.0
-            self._mode = self.nav.mode
+        ks = self.kernel
+        ks.target_time += float(dt)
+        end = int(math.floor(ks.target_time / self.physics_dt + 1e-6))
+        run_steps(ks, end, self.fw, self.reporting, self.modes, self.wind, self._packed)
 
 
 _LAGS = {}

@@ -172,8 +172,8 @@ def test_the_fleet_steps_each_vehicle_exactly_as_a_server_of_its_own():
         for a, b in zip(alone, fleet.servers):
             assert b.vehicle.tick == a.vehicle.tick == 1600
             assert np.array_equal(a.vehicle.state, b.vehicle.state)
-            assert np.array_equal(a.vehicle._fs, b.vehicle._fs)
-            assert np.array_equal(a.vehicle._S, b.vehicle._S)
+            assert np.array_equal(a.vehicle.kernel.fs, b.vehicle.kernel.fs)
+            assert np.array_equal(a.vehicle.kernel.S, b.vehicle.kernel.S)
             assert a.mode == b.mode and a.vehicle.armed == b.vehicle.armed
         # every path was taken: attitude flight and idle batched, the takeoff on its own
         assert {(0, "attitude"), (1, "idle"), (2, "takeoff"), (2, "attitude")} <= modes

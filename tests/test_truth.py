@@ -72,6 +72,15 @@ def test_each_message_is_read_in_its_own_units():
     assert true_state(hil(0, 0, 0)) is None and true_state(simstate(0.0, 0.0, 0.0)) is None
 
 
+def test_the_simulator_projects_its_truth_with_the_radii_the_companion_reads_it_with():
+    """sim keeps its own table (it imports nothing of mavadrc but mavadrc.control); it must not
+    drift from the companion's."""
+    from sim.personality import TRUTH_RADIUS
+    assert sorted(TRUTH_RADIUS) == sorted(SOURCES)
+    for message, radius in SOURCES.items():
+        assert TRUTH_RADIUS[message] == radius, message
+
+
 def test_the_track_is_projected_with_the_simulators_radius_and_aligned_at_rest():
     track = TruthTrack("HIL_STATE_QUATERNION")
     lat0, lon0 = 47.3977432, 8.5455942

@@ -13,7 +13,8 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mavadrc.control.rotations import euler_from_quat, rotation_matrix
-from mavadrc.flight.truth import SOURCES as TRUTH_RADIUS  # each simulator's sphere, as it projects
+
+from ..personality import TRUTH_RADIUS  # each simulator's sphere, as it projects
 
 M = mavlink
 EARTH_RADIUS = 6378137.0
