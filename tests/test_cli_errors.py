@@ -208,7 +208,7 @@ def test_ctrl_c_during_tune_ends_in_one_line_and_writes_nothing(tmp_path):
 
 
 def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_path, monkeypatch):
-    from mavadrc.control._jit import needs_compiling
+    from mavadrc.control.jit import needs_compiling
 
     (tmp_path / "fresh_kernel_mod.py").write_text(
         "from numba import njit\n\n@njit(cache=True)\ndef twice(x):\n    return 2.0 * x\n")

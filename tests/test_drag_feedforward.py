@@ -459,7 +459,6 @@ def test_taking_over_mid_motion_does_not_feed_the_drag_forward_twice():
     the safe one's, not one drag's worth more (on PX4 SIH the command went from -1.2 to -3
     m/s^2 at the takeover and the vehicle fell 0.17 m off)."""
     from mavadrc.control import PositionController
-    from mavadrc.flight.choice import carry_over
     v, drag, h = -0.75, 1.0, 0.01
     safe = PositionController("ladrc", h=h, hover_thrust=0.5, wc=1.0, wo=4.0)
     x, ref = np.array([0.0, 0.0, -3.0]), np.array([0.0, 0.0, -3.0])
@@ -479,7 +478,7 @@ def test_taking_over_mid_motion_does_not_feed_the_drag_forward_twice():
     firsts = []
     for ref_vel in (rv, None):
         c = mission()
-        carry_over(c, safe, x, vel, ref_vel)
+        c.take_over_from(safe, x, vel, ref_vel)
         c.update(x, vel, ref, rv)
         firsts.append(c.accel_applied[0])
     # -0.87 for the safe one's -0.75 (the faster gains' first step); without: -1.65

@@ -344,11 +344,10 @@ def _fly_lighter(c, steps, p, v, h=0.01, k=1.0 / 0.7, g=9.80665):
 
 
 def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturbance():
-    """After the identification the mission's controller takes over (flight.carry_over): one
+    """After the identification the mission's controller takes over (PositionController.take_over_from): one
     that learns too starts from the thrust learnt; one that does not gets the whole vertical
     disturbance against the thrust told in its z3, so neither asks for a different thrust."""
     from mavadrc.control import PositionController
-    from mavadrc.flight.choice import carry_over
 
     g, k, h = 9.80665, 1.0 / 0.7, 0.01  # a vehicle 30 % lighter than told
 
@@ -363,7 +362,7 @@ def test_a_controller_taking_over_keeps_the_thrust_learnt_or_the_whole_disturban
     assert old.hover_thrust_estimate == pytest.approx(0.5 / k, rel=0.02)
     for tau, learns in ((1.0, True), (None, False)):
         new = make(tau)
-        carry_over(new, old, p, v)
+        new.take_over_from(old, p, v)
         assert new.hover_thrust_estimate == pytest.approx(
             old.hover_thrust_estimate if learns else 0.5)
         assert new.disturbance[2] == pytest.approx(old.disturbance[2], abs=1e-12)
@@ -428,11 +427,10 @@ def test_a_pid_learns_the_thrust_from_its_integrator_and_hands_it_over(k):
     heavier than told, holding the hover meanwhile; what it learnt is moved out of the
     integrator (which would otherwise count the weight twice and sit at its limit: 3 m/s^2 is
     less than the 3.9 a vehicle 40 % heavier lacks).  The safe LADRC taking over
-    (flight.carry_over) starts from the thrust and the disturbance it left, asking for the same
+    (PositionController.take_over_from) starts from the thrust and the disturbance it left, asking for the same
     thrust."""
     from mavadrc.control import PositionController
     from mavadrc.control import kernels as K
-    from mavadrc.flight.choice import carry_over
 
     g, h = 9.80665, 0.01
     pid = PositionController("pid", h=h, hover_thrust=0.5, wc=(2.0, 2.0, 3.0),
@@ -453,7 +451,7 @@ def test_a_pid_learns_the_thrust_from_its_integrator_and_hands_it_over(k):
     assert pid.disturbance[2] == pytest.approx(-g * (1.0 - 1.0 / k), rel=0.05)
     new = PositionController("ladrc", h=h, hover_thrust=0.5, wc=1.0, wo=4.0,
                              thrust_estimate_tau=2.0)
-    carry_over(new, pid, p, v)
+    new.take_over_from(pid, p, v)
     assert new.hover_thrust_estimate == pid.hover_thrust_estimate
     _, t_old = pid.update(p, v, [0.0, 0.0, -1.0])
     _, t_new = new.update(p, v, [0.0, 0.0, -1.0])

@@ -26,7 +26,7 @@ from mavadrc.control import PD, PID, HanADRC, HanESO, LinearADRC, LinearESO, Pos
 from mavadrc.control import TrackingDifferentiator, fal, fhan
 from mavadrc.control import kernels as K
 from mavadrc.control import position as PC
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 
 H = 1e-3  # the ADRC notes' step (channel-level loops)
 HP = 0.01  # a position loop's step

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from . import kernels as K
-from ._jit import jit
+from .jit import jit
 from .channels import nonfinite_arrays
 from .position import axis_params
 from .rotations import wrap_pi

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit
+from .jit import jit
 from .rotations import quat_from_rotmat
 
 GRAVITY = 9.80665

@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit, jit_inline
+from .jit import jit, jit_inline
 
 # --- channel kinds -------------------------------------------------------------------------------
 KIND_PD = 0

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import geometry as G
 from . import kernels as K
-from ._jit import jit
+from .jit import jit
 from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params, pid_params
 
 AXES = ("x", "y", "z")
@@ -510,6 +510,42 @@ class PositionController:
         f_up (M_TPA / M_TPA0 - 1): 0 when the thrust is not learnt."""
         up = self._M[G.M_G] - self._IN[2, IN_STATE]
         return up * (self._M[G.M_TPA] / self._M[G.M_TPA0] - 1.0)
+
+    def continue_from(self, old):
+        """Go on where ``old`` (of this kind, its gains or model changed) is: every observer
+        state, the input model's state and the thrust learnt, so the loop goes on without a
+        jump mid-flight."""
+        self._S[:] = old._S
+        same = np.array_equal(self._IN[:, [IN_NLAG, IN_ND]], old._IN[:, [IN_NLAG, IN_ND]])
+        for i in range(3):
+            if same:  # the same stages: their states go on (the new lags' alphas take over)
+                for col in (IN_STATE, IN_L1, IN_HEAD):
+                    self._IN[i, col] = old._IN[i, col]
+                self._IN[i, IN_BUF:] = old._IN[i, IN_BUF:]
+            else:  # reshaped: held at the acceleration it gave
+                input_model_rest(self._IN[i], old._IN[i, IN_STATE])
+        if self.learns_thrust and old.learns_thrust:
+            self.adopt_thrust(old)
+
+    def take_over_from(self, old, pos, vel, ref_vel=None):
+        """Start where ``old`` (any kind) left off: at the measured ``pos``/``vel``, with
+        ``old``'s disturbance estimates, the thrust it had learnt (both learning) and the
+        acceleration it last commanded as the input model's state (a controller made anew
+        mid-flight then takes over without a jump).  ``ref_vel``: the reference's velocity now;
+        the drag along it that this one models and ``old`` did not is moved out of the
+        disturbance estimates (left in, it was fed forward twice: on PX4 SIH, taking over 1.5 s
+        into the run-up at 0.75 m/s, the command went from -1.2 to -3 m/s^2 and the vehicle fell
+        0.17 m off)."""
+        self.reset(pos, vel)
+        self._S[:, K.S_Z3] = old._S[:, K.S_Z3]
+        if ref_vel is not None:
+            self._S[:, K.S_Z3] += (self.drag - old.drag) * np.asarray(ref_vel, dtype=float)
+        for i, a in enumerate(old.accel_applied):
+            input_model_rest(self._IN[i], a)
+        if self.learns_thrust and old.learns_thrust:
+            self.adopt_thrust(old)
+        elif old.learns_thrust:  # this one keeps the thrust told: its z3 is the whole disturbance
+            self._S[2, K.S_Z3] = old.disturbance[2]
 
     def adopt_thrust(self, other):
         """Take the thrust per acceleration ``other`` has learnt (a controller taking over)."""

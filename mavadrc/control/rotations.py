@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit
+from .jit import jit
 
 
 @jit

@@ -41,7 +41,7 @@ import math
 
 import numpy as np
 
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 from mavadrc.control.position import LAG63
 
 #: the legs' speeds must differ by this much (m/s) on an axis for its drag to be read there

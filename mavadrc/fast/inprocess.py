@@ -52,12 +52,12 @@ from sim.wind import WIND_SCRATCH
 
 from mavadrc.control import geometry as G
 from mavadrc.control import kernels as K
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 from mavadrc.control.position import position_hold_disturbance, position_update
 from mavadrc.control.rotations import quat_to_euler, wrap_pi
 from mavadrc.design.gains import make_controller
-from mavadrc.mission.takeoff import YAW_RATE
-from mavadrc.mission.takeoff import LIFTOFF_CLIMB, LIFTOFF_HEIGHT, spool_thrust
+from mavadrc.mission.takeoff import spool_thrust
+from mavadrc.mission.takeoff import GROUND_RULES, lifted_f32
 
 #: s of vehicle time at which every run's mission clock starts: after the MAVLink flight has
 #: measured the sample rate (1 s), armed, and waited out PX4's COM_SPOOLUP_TIME (1 s)
@@ -118,16 +118,6 @@ def _attitude_setpoint(sp, q0, q1, q2, q3, thrust):
         sp[A.SP_RATES + i] = 0.0
     sp[A.SP_THRUST] = min(max(thrust, 0.0), 1.0)
 
-
-#: the flight's ground rules, passed to the compiled loops (a constant read from another
-#: module would be frozen into numba's cache of this one)
-GROUND_RULES = np.array([LIFTOFF_HEIGHT, LIFTOFF_CLIMB, YAW_RATE])
-
-
-@jit
-def _lifted(pos, vel, origin, rules):
-    """:func:`mavadrc.flight.flight.lifted_off` on a float32 sample."""
-    return origin[2] - pos[2] >= rules[0] or vel[2] < -rules[1]
 
 
 @jit
@@ -240,7 +230,7 @@ def closed_loop(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wi
             ok = position_update(Sc, Pc, Mc, INc, pos, vel, rpos, rvel, racc, yaw_ref, out, hc,
                                  age)
             if not lifted:
-                if _lifted(pos, vel, origin, rules):
+                if lifted_f32(pos, vel, origin, rules):
                     lifted = True
                 else:
                     position_hold_disturbance(Sc)
@@ -333,7 +323,7 @@ def spool(x, fs, fp, S, P, W, mx, sp, omega, wk, pv, wp, dstate, eta, v_wind, f_
                 pos[i] = spos[d, i]
                 vel[i] = svel[d, i]
             yaw = syaw[k - 1] if k >= 1 else yaw_before
-            last = s >= last_k or _lifted(pos, vel, origin, rules)
+            last = s >= last_k or lifted_f32(pos, vel, origin, rules)
             if last:
                 for i in range(3):
                     start[i] = pos[i]

@@ -4,10 +4,7 @@ rate flown and the hover thrust known, its kernels run once before it flies."""
 
 import numpy as np
 
-from mavadrc.control import kernels as K
 from mavadrc.control.learn import DragLearner
-from mavadrc.control.position import (IN_BUF, IN_HEAD, IN_L1, IN_ND, IN_NLAG, IN_STATE,
-                                      input_model_rest)
 from mavadrc.design.gains import (MISSION_MARGIN_FLOOR, TAKEOFF_KIND, _run_once, built,
                                   identification_gains, resolve_gains, slower_than,
                                   takeoff_gains)
@@ -147,43 +144,6 @@ def bandwidths(gains):
         return ""
     return (f", wc ({', '.join(f'{x:.2f}' for x in gains['wc'])}), wo "
             f"({', '.join(f'{x:.1f}' for x in gains['wo'])})")
-
-
-def carry_on(ctrl, old):
-    """Go on with ``ctrl`` (of ``old``'s kind, its gains or model changed) where ``old`` is:
-    every observer state, the input model's state and the thrust learnt, so the loop goes on
-    without a jump mid-mission."""
-    ctrl._S[:] = old._S
-    same = np.array_equal(ctrl._IN[:, [IN_NLAG, IN_ND]], old._IN[:, [IN_NLAG, IN_ND]])
-    for i in range(3):
-        if same:  # the same stages: their states go on (the new lags' alphas take over)
-            for col in (IN_STATE, IN_L1, IN_HEAD):
-                ctrl._IN[i, col] = old._IN[i, col]
-            ctrl._IN[i, IN_BUF:] = old._IN[i, IN_BUF:]
-        else:  # reshaped: held at the acceleration it gave
-            input_model_rest(ctrl._IN[i], old._IN[i, IN_STATE])
-    if ctrl.learns_thrust and old.learns_thrust:
-        ctrl.adopt_thrust(old)
-
-
-def carry_over(ctrl, old, pos, vel, ref_vel=None):
-    """Start ``ctrl`` where ``old`` left off: at the measured ``pos``/``vel``, with ``old``'s
-    disturbance estimates, the thrust it had learnt (both learning) and the acceleration it
-    last commanded as the input model's state (a controller made anew mid-flight then takes
-    over without a jump).  ``ref_vel``: the reference's velocity now; the drag along it that
-    ``ctrl`` models and ``old`` did not is moved out of the disturbance estimates (left in, it
-    was fed forward twice: on PX4 SIH, taking over 1.5 s into the run-up at 0.75 m/s, the
-    command went from -1.2 to -3 m/s^2 and the vehicle fell 0.17 m off)."""
-    ctrl.reset(pos, vel)
-    ctrl._S[:, K.S_Z3] = old._S[:, K.S_Z3]
-    if ref_vel is not None:
-        ctrl._S[:, K.S_Z3] += (ctrl.drag - old.drag) * np.asarray(ref_vel, dtype=float)
-    for i, a in enumerate(old.accel_applied):
-        input_model_rest(ctrl._IN[i], a)
-    if ctrl.learns_thrust and old.learns_thrust:
-        ctrl.adopt_thrust(old)
-    elif old.learns_thrust:  # the new one keeps the thrust told: its z3 is the whole disturbance
-        ctrl._S[2, K.S_Z3] = old.disturbance[2]
 
 
 def controller_record(spec, kind, gains):

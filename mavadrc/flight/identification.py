@@ -12,7 +12,7 @@ from mavadrc.design.gains import (MARGIN_SHARE, MISSION_MARGIN_FLOOR, TAKEOFF_KI
                                   _run_once, fit_and_make, takeoff_gains)
 from mavadrc.design.identify import MAX_DELAY_S, failure_text, partial_text, summary_line
 from mavadrc.design.margin import margin_text, prediction_text
-from mavadrc.flight.choice import bandwidths, carry_on, carry_over, controller_record
+from mavadrc.flight.choice import bandwidths, controller_record
 
 #: the drag learnt this long (s) before the identify segment is fitted again with it known
 REFINE_AFTER_S = 6.0
@@ -82,7 +82,7 @@ class Identification:
     def takeoff_handover(self, s, t, ref_vel):
         """At :attr:`handover_t` (mission time ``t``, sample ``s``), the takeoff's PID hands
         the vehicle to the safe LADRC that flies the doublets, without a jump
-        (:func:`~mavadrc.flight.choice.carry_over`: its disturbance estimates start at the
+        (:meth:`~mavadrc.control.position.PositionController.take_over_from`: its disturbance estimates start at the
         PID's integrator, the thrust learnt is kept; ``ref_vel``: the reference's velocity)."""
         c = self.choice
         if not c.takeoff_pid or self.handover_t is None or t < self.handover_t - 1e-9:
@@ -91,7 +91,7 @@ class Identification:
         old = c.ctrl
         c.ctrl, c.delay_margin = c.after_takeoff
         c.after_takeoff = None
-        carry_over(c.ctrl, old, s.pos, s.vel, ref_vel)
+        c.ctrl.take_over_from(old, s.pos, s.vel, ref_vel)
         up = float(self.progress.origin[2] - s.pos[2])
         c.takeoff_controller = {**controller_record(c.m.controller, TAKEOFF_KIND,
                                                     takeoff_gains()),
@@ -107,7 +107,8 @@ class Identification:
         a good part of a second: in lockstep (the vehicle waits) they are made at once, in real
         time in a thread while the safe controller flies on, and the new controller takes over
         at the first sample after they are ready (``ref_vel``: the reference's velocity the
-        controller flies to now, for :func:`~mavadrc.flight.choice.carry_over`)."""
+        controller flies to now, for
+        :meth:`~mavadrc.control.position.PositionController.take_over_from`)."""
         if self._job is not None:
             if not self._job.done():
                 return
@@ -167,7 +168,7 @@ class Identification:
             self.notices.warn_once("identify", partial_text(rec), every=0.0)
         old = c.ctrl
         c.ctrl, c.gains, c.delay_margin = ctrl, gains, margin
-        carry_over(c.ctrl, old, s.pos, s.vel, ref_vel)
+        c.ctrl.take_over_from(old, s.pos, s.vel, ref_vel)
         c.learner = c.drag_learner(ctrl, gains)
         lag = ", ".join(f"{x:.3f}" for x in gains["input_lag"])
         bw = bandwidths(gains)
@@ -255,7 +256,7 @@ class Identification:
             return
         old = c.ctrl
         ctrl.set_drag([*old.drag[:2], ctrl.drag[2]])  # the drag learnt so far goes on
-        carry_on(ctrl, old)
+        ctrl.continue_from(old)
         c.ctrl, c.gains, c.delay_margin = ctrl, gains, margin
         rec_margin = rec.get("delay_margin_s")  # on the response refitted (_fit)
         note["delay_margin_s"] = rec_margin

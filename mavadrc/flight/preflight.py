@@ -57,7 +57,7 @@ class Preflight:
         # the controller (and every kernel of the loop: compiled now, not mid-flight) is made
         # while the vehicle comes up; with the hover thrust still to be read, made again after
         say = self.notices.say
-        from mavadrc.control._jit import needs_compiling
+        from mavadrc.control.jit import needs_compiling
         from mavadrc.control.position import position_update
 
         if needs_compiling(position_update):

@@ -2,6 +2,7 @@
 spooled up on the ground, when the vehicle has lifted off, how fast the heading turns."""
 import math
 import numpy as np
+from mavadrc.control.jit import jit
 
 
 SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
@@ -49,3 +50,15 @@ def lifted_off(height, vz):
 #: the heading turns from the vehicle's to the mission's at this rate (rad/s): PX4's
 #: MPC_YAWRAUTO_MAX default, 45 deg/s
 YAW_RATE = math.radians(45.0)
+
+
+#: the takeoff's rules as the fast path's compiled loops take them (passed in: a constant read
+#: from another module would be frozen into numba's cache of the loop's)
+GROUND_RULES = np.array([LIFTOFF_HEIGHT, LIFTOFF_CLIMB, YAW_RATE])
+
+
+@jit
+def lifted_f32(pos, vel, origin, rules):
+    """:func:`lifted_off` on a float32 sample, for the compiled fast path (``rules``:
+    :data:`GROUND_RULES`)."""
+    return origin[2] - pos[2] >= rules[0] or vel[2] < -rules[1]

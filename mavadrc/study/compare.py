@@ -111,7 +111,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
                 bar.step(ticks[k])
     else:
         if via == "inprocess":
-            from mavadrc.control._jit import needs_compiling
+            from mavadrc.control.jit import needs_compiling
             from mavadrc.fast.inprocess import closed_loop
 
             if needs_compiling(closed_loop):
