@@ -253,7 +253,7 @@ def test_the_thesis_gains_are_judged_on_spirals_they_were_not_tuned_on():
 
 
 def test_tune_improves_on_its_start_and_writes_a_controller(tmp_path):
-    from mavadrc.mission.config import _read_controller
+    from mavadrc.mission.config import read_controller
     from mavadrc.study.tune import controller_yaml, tune
     from sim.yamlio import Section, load_yaml
 
@@ -265,7 +265,7 @@ def test_tune_improves_on_its_start_and_writes_a_controller(tmp_path):
                stream=open(os.devnull, "w"))
     assert res["cost_m"] < 0.7 * res["start_cost_m"]
     text = controller_yaml(res)
-    spec = _read_controller(Section(load_yaml(tmp_path / "c.yaml", text=text), "c.yaml"))
+    spec = read_controller(Section(load_yaml(tmp_path / "c.yaml", text=text), "c.yaml"))
     assert spec.kind == "pd" and spec.gains["wc"][0] > 0.6
     assert math.isfinite(res["cost_m"])
 

@@ -1,6 +1,6 @@
 """What stopped a real-time flight's loop: the input model's fit, now in its own process
 (mavadrc.design.fitworker); the heap, now frozen for the loop (mavadrc.flight.flight._freeze_heap); a kernel
-compiled at the mission's first sample, now run before the flight (mavadrc.flight.flight._run_once).
+compiled at the mission's first sample, now run before the flight (mavadrc.flight.flight.run_once).
 
 On PX4 SIH the fit made in a thread beside the loop held the interpreter, and the samples' age
 rose to 0.2-0.4 s as it ended, a moment before the spiral began; a full collection of the heap
@@ -149,13 +149,13 @@ def test_a_controller_built_for_flight_has_every_kernel_the_record_reads_ready()
     import sys
 
     code = ("from mavadrc.control import kernels as K\n"
-            "from mavadrc.flight.flight import built, _run_once\n"
+            "from mavadrc.flight.flight import built, run_once\n"
             "from mavadrc.mission.config import ControllerSpec\n"
             "ready = lambda: bool(getattr(K.td_output, 'signatures', [True]))\n"
             "before = ready()\n"
             "ctrl, _ = built(ControllerSpec(kind='adrc', rate_hz=100.0), 0.5, 'adrc', 100.0,"
             " None)\n"
-            "_run_once(ctrl)\n"
+            "run_once(ctrl)\n"
             "print(before, ready())\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=300, env=dict(os.environ, PYTHONPATH=os.getcwd()))

@@ -25,7 +25,7 @@ from mavadrc.study.experiment import load_experiment, run_inprocess
 from mavadrc.design.gains import make_controller
 from mavadrc.fast.inprocess import L_DIST, L_T
 from mavadrc.design.margin import delay_margin, disturbance_response
-from mavadrc.mission.config import _read_controller
+from mavadrc.mission.config import read_controller
 from sim.vehicle import response_time_constants
 from sim.yamlio import Section, load_yaml
 
@@ -61,7 +61,7 @@ def controllers(exp, also):
         oracle = c.kind == "oracle"
         out.append((c.name, dataclasses.replace(c.spec, kind="pd") if oracle else c.spec, oracle))
     for path in also:
-        spec = _read_controller(Section(load_yaml(path), str(path)))
+        spec = read_controller(Section(load_yaml(path), str(path)))
         out.append((f"{spec.name or spec.kind} ({Path(path).name})", spec, False))
     return out
 

@@ -224,7 +224,7 @@ def built(spec, hover, kind, rate, gains):
 
 
 
-def _run_once(ctrl):
+def run_once(ctrl):
     """Every kernel of ``ctrl``'s step, and of what the record reads of it each step (its
     estimates; ADRC's TD outputs), run once: compiled or loaded now, not mid-flight.  (The TD's
     read was not: on PX4 SIH a first ADRC flight compiled it at the mission's first sample and

@@ -5,7 +5,7 @@ rate flown and the hover thrust known, its kernels run once before it flies."""
 import numpy as np
 
 from mavadrc.control.learn import DragLearner
-from mavadrc.design.gains import (MISSION_MARGIN_FLOOR, TAKEOFF_KIND, _run_once, built,
+from mavadrc.design.gains import (MISSION_MARGIN_FLOOR, TAKEOFF_KIND, run_once, built,
                                   identification_gains, resolve_gains, slower_than,
                                   takeoff_gains)
 from mavadrc.design.identify import (needs_identification, observer_dead_time, observer_drag,
@@ -99,7 +99,7 @@ class ControllerChoice:
         computed and every kernel of its step run once (compiled now, not mid-flight); at rest,
         waiting for its first sample."""
         ctrl, margin = built(self.m.controller, hover, kind, self.rate, gains)
-        _run_once(ctrl)
+        run_once(ctrl)
         return ctrl, margin
 
     def record(self):

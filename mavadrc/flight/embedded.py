@@ -110,7 +110,7 @@ class EmbeddedVehicle:
         wind = mission.wind if wind is None else wind
         if isinstance(wind, dict):
             path = workdir / "wind.yaml"
-            path.write_text(yaml.safe_dump(_plain(wind)))
+            path.write_text(yaml.safe_dump(plain(wind)))
             wind = str(path)
         if wind is not None:
             cmd += ["--wind", str(wind)]
@@ -300,9 +300,9 @@ class ForkedVehicle:
         self._signal(signal.SIGKILL)
 
 
-def _plain(x):
+def plain(x):
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, list):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     return x

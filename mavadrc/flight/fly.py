@@ -255,9 +255,9 @@ def write_effective(folder, mission, summary, bundled):
         if isinstance(wind, (str, Path)) and Path(wind).is_file():
             wind = str(Path(wind).resolve())
         if wind is not None:
-            from mavadrc.flight.embedded import _plain
+            from mavadrc.flight.embedded import plain
 
-            doc["wind"] = _plain(wind)
+            doc["wind"] = plain(wind)
     head = (f"# {Path(mission.source).name} as flown: every override applied, the controller's "
             "gains resolved\n")
     (Path(folder) / "effective.yaml").write_text(head + yaml.safe_dump(doc, sort_keys=False,

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from mavadrc.design.gains import (MARGIN_SHARE, MISSION_MARGIN_FLOOR, TAKEOFF_KIND, TAKEOFF_WC,
-                                  _run_once, fit_and_make, takeoff_gains)
+                                  run_once, fit_and_make, takeoff_gains)
 from mavadrc.design.identify import MAX_DELAY_S, failure_text, partial_text, summary_line
 from mavadrc.design.margin import margin_text, prediction_text
 from mavadrc.flight.choice import bandwidths, controller_record
@@ -147,7 +147,7 @@ class Identification:
             out = self.fitter.call(fit_and_make, *job)
             out[0]["fit_in"] = self.fitter.where
         if out[1] is not None:
-            _run_once(out[1])
+            run_once(out[1])
         return out
 
     def _identified(self, s, ref_vel, rec, ctrl, gains, margin):

@@ -402,7 +402,7 @@ def _read_segment(sec):
     return kind, spec, inner
 
 
-def _read_controller(sec, kinds=None):
+def read_controller(sec, kinds=None):
     c = ControllerSpec()
     c.name = sec.string("name", None)  # a label (experiments' tables; mavadrc tune writes one)
     c.kind = sec.string("type", "ladrc", choices=kinds or KINDS)
@@ -673,7 +673,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
                 m.hover_thrust = m.mass * 9.80665 / m.max_thrust
                 m.hover_source = "the mission's vehicle.mass and max_thrust"
     if controller:
-        m.controller = _read_controller(top.section("controller")) if top.has("controller") \
+        m.controller = read_controller(top.section("controller")) if top.has("controller") \
             else ControllerSpec()
     segs = top.sections("trajectory")
     if not segs:

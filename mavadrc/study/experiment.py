@@ -59,7 +59,7 @@ import numpy as np
 
 from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
-from mavadrc.mission.config import KINDS, _read_controller, mission_from_section
+from mavadrc.mission.config import KINDS, read_controller, mission_from_section
 from mavadrc.flight.record import attitude_oscillation, error_figures
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
@@ -218,7 +218,7 @@ def experiment_from_text(source, text):
         top.error("defaults", f"must be a mapping of mission keys (got {described(defaults)})")
     controllers = []
     for cs in top.sections("controllers"):
-        spec = _read_controller(cs, kinds=CONTROLLER_KINDS)
+        spec = read_controller(cs, kinds=CONTROLLER_KINDS)
         label = spec.name or spec.kind.upper()
         if any(c.name == label for c in controllers):
             cs.error("name", f"two controllers are called {label!r}")

@@ -161,7 +161,7 @@ def _metres(x):
     return f"{x:#.3g} m"
 
 
-def _min_span(ax, span, which="y"):
+def min_span(ax, span, which="y"):
     """Widen each axis in ``which`` ('x', 'y', 'z') to at least ``span`` around its data:
     values that differ only by floating-point rounding (an estimate of 1e-13 where the truth is
     0) draw as a flat line at their value, not blown up to fill the axes on a 1e-13 scale."""
@@ -247,14 +247,14 @@ def draw_path(out, pos, ref=None, title="Flight path", truth=None):
             span[2] = zmin
         ax.set_box_aspect((max(span[1], 1e-3) / horiz, max(span[0], 1e-3) / horiz,
                            float(np.clip(span[2] / horiz, 0.35, 1.0))))
-    _min_span(ax, MIN_SPAN_M, "xy")
+    min_span(ax, MIN_SPAN_M, "xy")
     label_3d(ax, "east [m]", "north [m]", "altitude [m]")
     ax.set_title("3-D path")
     ax.legend(loc="upper left", fontsize=8)
     top.set_xlabel("east [m]")
     top.set_ylabel("north [m]")
     top.set_title("top view")
-    _min_span(top, MIN_SPAN_M, "xy")
+    min_span(top, MIN_SPAN_M, "xy")
     top.set_aspect("equal", adjustable="datalim")
     top.grid(True, alpha=0.3)
     top.legend(fontsize=8)
@@ -292,7 +292,7 @@ def draw_error(out, t, err, spans=(), stats=None, title="Position error", xlabel
                 label="estimate" if k == 0 and truth is not None else None)
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"{names[k]} error [m]")
-        _min_span(ax, MIN_SPAN_M)
+        min_span(ax, MIN_SPAN_M)
         _stat_box(ax, shown[:, k])
     axes[3].plot(t, norm, color="k", lw=1.0)
     axes[3].set_ylabel("3-D error [m]")
@@ -338,7 +338,7 @@ def draw_disturbance(out, est=None, truth=None, note=None, title="Total disturba
                     bbox=dict(boxstyle="round,pad=0.4", fc="white", ec="0.7"))
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"{NED[k]} [m/s$^2$]")
-        _min_span(ax, MIN_SPAN_ACC)
+        min_span(ax, MIN_SPAN_ACC)
         ax.grid(True, alpha=0.3)
     if has_est or has_truth:
         axes[0].legend(loc="upper right", fontsize=8)

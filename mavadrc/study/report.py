@@ -519,7 +519,7 @@ def _scenario_figure(job):
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from mavadrc.study.figures import MIN_SPAN_ACC, MIN_SPAN_M, _min_span, label_3d
+    from mavadrc.study.figures import MIN_SPAN_ACC, MIN_SPAN_M, min_span, label_3d
     from mavadrc.fast.inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
 
     path, title, settle_s, runs = job
@@ -532,7 +532,7 @@ def _scenario_figure(job):
         ax3.plot(L[:, L_POS + 1], L[:, L_POS], -L[:, L_POS + 2], lw=1.2, color=colour[name],
                  zorder=2)
     ax3.plot(ref[:, L_REF + 1], ref[:, L_REF], -ref[:, L_REF + 2], "k--", lw=1, zorder=3)
-    _min_span(ax3, MIN_SPAN_M, "xyz")
+    min_span(ax3, MIN_SPAN_M, "xyz")
     label_3d(ax3, "east (m)", "north (m)", "altitude (m)")
     ax = fig.add_subplot(2, 2, 2)
     for name, _, L in runs:
@@ -550,7 +550,7 @@ def _scenario_figure(job):
             ax.plot(L[:, L_T], L[:, L_Z3], lw=1, color=colour[name])
             shown = True
     ax.plot(ref[:, L_T], ref[:, L_DIST], "k:", lw=1.2)
-    _min_span(ax, MIN_SPAN_ACC)
+    min_span(ax, MIN_SPAN_ACC)
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel("disturbance accel. x (m/s^2)")
     ax.set_title("observer estimate z3 (x) vs truth (dotted)" if shown
