@@ -1,6 +1,6 @@
 """What stopped a real-time flight's loop: the input model's fit, now in its own process
 (mavadrc.design.fitworker); the heap, now frozen for the loop (mavadrc.flight.flight._freeze_heap); a kernel
-compiled at the mission's first sample, now run before the flight (mavadrc.flight.flight.run_once).
+compiled at the mission's first sample, now run before the flight (mavadrc.design.gains.run_once).
 
 On PX4 SIH the fit made in a thread beside the loop held the interpreter, and the samples' age
 rose to 0.2-0.4 s as it ended, a moment before the spiral began; a full collection of the heap

@@ -1,9 +1,14 @@
 """`mavadrc identify`: fly the identification and write the input model."""
 
-from mavadrc.design.identify import (failure_text, model_yaml, partial_text, summary_line,
-                                     unidentified_axes)
-from mavadrc.mission.config import flight_mission
 from mavadrc.cli.fly import draw_figures
+from mavadrc.design.identify import (
+    failure_text,
+    model_yaml,
+    partial_text,
+    summary_line,
+    unidentified_axes,
+)
+from mavadrc.mission.config import flight_mission
 
 
 def main(args):
@@ -11,13 +16,12 @@ def main(args):
     import sys
     from pathlib import Path
 
-    from sim.yamlio import ConfigError
-
-    from mavadrc.flight.fly import EXIT_INTERRUPTED, Interrupted, UsageError, fly
     from mavadrc.cli.fly import check_bundled, read_key
     from mavadrc.errors import FlightError
+    from mavadrc.flight.fly import EXIT_INTERRUPTED, Interrupted, UsageError, fly
     from mavadrc.mavlink.link import LinkError
     from mavadrc.mission.config import load_mission
+    from sim.yamlio import ConfigError
 
     def fail(text, code):
         print(f"mavadrc identify: {text}", file=sys.stderr)

@@ -9,8 +9,16 @@ The laws are the corrected forms of the thesis's equations; see the README.
 """
 
 from .attitude import AttitudeController
-from .channels import (PD, PID, HanADRC, HanESO, LinearADRC, LinearESO, TrackingDifferentiator,
-                       make_channel)
+from .channels import (
+                       PD,
+                       PID,
+                       HanADRC,
+                       HanESO,
+                       LinearADRC,
+                       LinearESO,
+                       TrackingDifferentiator,
+                       make_channel,
+)
 from .geometry import acceleration_to_attitude
 from .kernels import fal, fhan
 from .position import PositionController

@@ -11,8 +11,8 @@ import math
 import numpy as np
 
 from . import kernels as K
-from .jit import jit
 from .channels import nonfinite_arrays
+from .jit import jit
 from .position import axis_params
 from .rotations import wrap_pi
 

@@ -13,8 +13,8 @@ import numpy as np
 
 from . import geometry as G
 from . import kernels as K
-from .jit import jit
 from .channels import han_params, ladrc_params, nonfinite_arrays, pd_params, pid_params
+from .jit import jit
 
 AXES = ("x", "y", "z")
 

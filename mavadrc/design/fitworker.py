@@ -1,6 +1,6 @@
 """The input model's fit in a process of its own, beside a flight flown in real time.
 
-The fit of the doublets (:func:`mavadrc.flight.flight.fit_and_make`: a grid and a Nelder-Mead search,
+The fit of the doublets (:func:`mavadrc.design.gains.fit_and_make`: a grid and a Nelder-Mead search,
 then the controller made with it and its delay margins) is one to two seconds of Python and
 numba kernels.  Made in a thread beside the control loop, it shared the interpreter's lock with
 the loop: on PX4 SIH the samples' age rose from ~0 to 0.21-0.27 s as the second fit (the drag

@@ -1,14 +1,23 @@
 """The gain policy: the gains a controller flies with, from the mission's spec, the safe defaults,
 the vehicle identified and the delay margin they must keep; the controller made from them."""
 import math
-import numpy as np
 import time
-from mavadrc.control.position import PositionController, THRUST_ESTIMATE_S
-from mavadrc.design.identify import ORDER, failure_text, fit_flight, observer_dead_time, observer_drag, observer_lag, response_margin
-from mavadrc.design.margin import delay_margin, margin_record
-from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
-from mavadrc.errors import FlightError
 
+import numpy as np
+
+from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
+from mavadrc.control.position import THRUST_ESTIMATE_S, PositionController
+from mavadrc.design.identify import (
+    ORDER,
+    failure_text,
+    fit_flight,
+    observer_dead_time,
+    observer_drag,
+    observer_lag,
+    response_margin,
+)
+from mavadrc.design.margin import delay_margin, margin_record
+from mavadrc.errors import FlightError
 
 #: observer-based controllers with no input model: bandwidths whose linearised loop is stable
 #: on every vehicle whose acceleration answers a command with a first-order lag of 0.03-0.30 s
@@ -78,7 +87,7 @@ def identification_gains(learn=True):
 #: velocity ran the wrong way for seconds in the climb, it drifted 0.08-0.78 m by SIH's truth
 #: where the safe LADRC, reading the position only, drifted 0.15-0.23, so it is not the
 #: default.  The doublets are flown on the safe LADRC (:func:`identification_gains`), which
-#: takes over :data:`mavadrc.design.identify.TAKEOFF_HANDOVER_S` before the fit's first sample: the
+#: takes over :data:`mavadrc.mission.identification.TAKEOFF_HANDOVER_S` before the fit's first sample: the
 #: drag leg's reading is calibrated on it (flown on this PID, the leg read PX4 SIH's drag of
 #: 1.0 /s as 0.93 in process, and the slowed defaults flew the spiral 0.15 m off for 0.017).
 TAKEOFF_KIND = "pid"
@@ -178,7 +187,7 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
         if identified is None:
             raise FlightError("input_lag: auto is measured on the vehicle flown: in flight (the "
                               "mission flies an identify segment after its takeoff), by "
-                              "mavadrc.design.identify.with_identified on the fast path, or by "
+                              "mavadrc.fast.identify.with_identified on the fast path, or by "
                               "`mavadrc identify`; otherwise give the lags in seconds")
         gains["input_lag"] = tuple(float(x) for x in identified)
     if shaped and kind in ("ladrc", "adrc"):
@@ -417,7 +426,7 @@ def fit_to_margin(spec, kind, gains, lag, dead_time=None):
 def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=None,
                     vehicle=None, attitude_controller="px4", rate_hz=None, gains=None):
     """The position controller of a mission's controller spec (``input_lag: auto`` resolved
-    before: :func:`mavadrc.design.identify.with_identified`); ``rate_hz`` overrides the spec's rate;
+    before: :func:`mavadrc.fast.identify.with_identified`); ``rate_hz`` overrides the spec's rate;
     ``gains``: those of :func:`resolve_gains`, already resolved."""
     kind = kind or spec.kind
     gains = dict(gains if gains is not None else

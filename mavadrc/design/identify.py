@@ -4,9 +4,9 @@ The observers of LADRC and ADRC predict with the acceleration they command; a re
 produces it late (its attitude loop, its motors, the age of the samples).  How late is measured
 on the vehicle being flown, never read from a model of it:
 
-1. the vehicle takes off and hovers on the safe default gains (:data:`mavadrc.flight.flight.SAFE_WC`,
+1. the vehicle takes off and hovers on the safe default gains (:data:`mavadrc.design.gains.SAFE_WC`,
    no input model; or, when the mission asks, takes off on a PID on the measured velocity,
-   :data:`mavadrc.flight.flight.TAKEOFF_KIND`, which hands it over to them before the doublets); both
+   :data:`mavadrc.design.gains.TAKEOFF_KIND`, which hands it over to them before the doublets); both
    hold on any vehicle of the family the README describes;
 2. it flies acceleration doublets about the hover point, one axis after the other
    (:class:`mavadrc.mission.trajectories.Doublets`: +-2 m/s^2 horizontally, about 11 deg of tilt, and
@@ -393,7 +393,7 @@ def fit(t, u, v, windows, shared_xy=True, drag=None):
 
 def unidentified_axes(rec):
     """The axes an identification that gives an input model could not fit (flown on the safe
-    default gains with no model; :func:`mavadrc.flight.flight.resolve_gains`)."""
+    default gains with no model; :func:`mavadrc.design.gains.resolve_gains`)."""
     return list(rec.get("unidentified", ()))
 
 

@@ -3,9 +3,16 @@
 
 import numpy as np
 
-from mavadrc.design.identify import (failure_text, fit_flight, needs_identification,
-                                     observer_dead_time, observer_drag, observer_lag,
-                                     summary_line, unidentified_axes)
+from mavadrc.design.identify import (
+    failure_text,
+    fit_flight,
+    needs_identification,
+    observer_dead_time,
+    observer_drag,
+    observer_lag,
+    summary_line,
+    unidentified_axes,
+)
 from mavadrc.mission.identification import ALTITUDE, windows_in
 
 

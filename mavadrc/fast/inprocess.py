@@ -7,12 +7,12 @@ This is what ``mavadrc compare`` runs by default.  It is the lockstep MAVLink fl
   as the mission's ``sim:`` section says (:func:`mavadrc.mission.config.vehicle_flown`) while what the
   companion is told (the hover thrust, ``input_lag: auto``) comes from the file;
 * the same timeline: on the ground until armed, the thrust spooled up
-  (:func:`mavadrc.flight.flight.spool_thrust`), the mission clock started at
+  (:func:`mavadrc.mission.takeoff.spool_thrust`), the mission clock started at
   :data:`MISSION_START` s of vehicle time (``Flight(start_at=...)`` on the MAVLink side), or
   at the sample that shows the vehicle lifting off, if it does during the spool-up;
 * the same ground rules: until the vehicle has lifted off the observers hold no disturbance
   estimate, and the heading turns from the vehicle's to the mission's at
-  :data:`mavadrc.flight.flight.YAW_RATE`;
+  :data:`mavadrc.mission.takeoff.YAW_RATE`;
 * one control step per LOCAL_POSITION_NED sample, the reference read as the flight reads it, and
   every value that crosses the wire rounded to the float32 MAVLink carries (position, velocity,
   the setpoint quaternion and thrust, the millisecond boot time);
@@ -40,24 +40,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim import physics as phys
-from sim.firmware import attitude as A
-from sim.link_model import LINK_FROM, PeriodLink
-from sim.params import load_vehicle
-from sim.personality import personality
-from sim.sensors import TYPICAL_NOISE
-from sim.vehicle import (SimVehicle, advance_wind_into, advance_wind_measured_into,
-                         vehicle_variant)
-from sim.wind import WIND_SCRATCH
-
 from mavadrc.control import geometry as G
 from mavadrc.control import kernels as K
 from mavadrc.control.jit import jit
 from mavadrc.control.position import position_hold_disturbance, position_update
 from mavadrc.control.rotations import quat_to_euler, wrap_pi
 from mavadrc.design.gains import make_controller
-from mavadrc.mission.takeoff import spool_thrust
-from mavadrc.mission.takeoff import GROUND_RULES, lifted_f32
+from mavadrc.mission.takeoff import GROUND_RULES, lifted_f32, spool_thrust
+from sim import physics as phys
+from sim.firmware import attitude as A
+from sim.link_model import LINK_FROM, PeriodLink
+from sim.params import load_vehicle
+from sim.personality import personality
+from sim.sensors import TYPICAL_NOISE
+from sim.vehicle import SimVehicle, advance_wind_into, advance_wind_measured_into, vehicle_variant
+from sim.wind import WIND_SCRATCH
 
 #: s of vehicle time at which every run's mission clock starts: after the MAVLink flight has
 #: measured the sample rate (1 s), armed, and waited out PX4's COM_SPOOLUP_TIME (1 s)

@@ -5,11 +5,22 @@ rate flown and the hover thrust known, its kernels run once before it flies."""
 import numpy as np
 
 from mavadrc.control.learn import DragLearner
-from mavadrc.design.gains import (MISSION_MARGIN_FLOOR, TAKEOFF_KIND, run_once, built,
-                                  identification_gains, resolve_gains, slower_than,
-                                  takeoff_gains)
-from mavadrc.design.identify import (needs_identification, observer_dead_time, observer_drag,
-                                     observer_lag)
+from mavadrc.design.gains import (
+    MISSION_MARGIN_FLOOR,
+    TAKEOFF_KIND,
+    built,
+    identification_gains,
+    resolve_gains,
+    run_once,
+    slower_than,
+    takeoff_gains,
+)
+from mavadrc.design.identify import (
+    needs_identification,
+    observer_dead_time,
+    observer_drag,
+    observer_lag,
+)
 
 
 class ControllerChoice:

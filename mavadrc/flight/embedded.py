@@ -24,7 +24,6 @@ import traceback
 
 import yaml
 
-
 #: ports chosen free are drawn from here up to the kernel's ephemeral range (MAVLink's own
 #: 14540-14580 and 14550 lie below)
 PORT_FLOOR = 20000

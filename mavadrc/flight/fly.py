@@ -19,14 +19,17 @@ import signal
 import sys
 from pathlib import Path
 
-
-from mavadrc.flight.console import (EXIT_INTERRUPTED, FlightSignals, guarded, interrupt_exit_status,
-                      interrupt_word)
-from mavadrc.flight.flight import Flight
-from mavadrc.mavlink.link import Link, LinkError, parse_url
-from mavadrc.flight.record import FlightRecord
 from mavadrc.errors import UsageError
-
+from mavadrc.flight.console import (
+    EXIT_INTERRUPTED,
+    FlightSignals,
+    guarded,
+    interrupt_exit_status,
+    interrupt_word,
+)
+from mavadrc.flight.flight import Flight
+from mavadrc.flight.record import FlightRecord
+from mavadrc.mavlink.link import Link, LinkError, parse_url
 
 
 class Interrupted(Exception):

@@ -8,8 +8,15 @@ import math
 
 import numpy as np
 
-from mavadrc.design.gains import (MARGIN_SHARE, MISSION_MARGIN_FLOOR, TAKEOFF_KIND, TAKEOFF_WC,
-                                  run_once, fit_and_make, takeoff_gains)
+from mavadrc.design.gains import (
+    MARGIN_SHARE,
+    MISSION_MARGIN_FLOOR,
+    TAKEOFF_KIND,
+    TAKEOFF_WC,
+    fit_and_make,
+    run_once,
+    takeoff_gains,
+)
 from mavadrc.design.identify import MAX_DELAY_S, failure_text, partial_text, summary_line
 from mavadrc.design.margin import margin_text, prediction_text
 from mavadrc.flight.choice import bandwidths, controller_record

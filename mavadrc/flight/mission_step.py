@@ -10,10 +10,10 @@ import numpy as np
 from mavadrc.control.geometry import GRAVITY
 from mavadrc.flight.landing import CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S
 from mavadrc.flight.state import Held
+from mavadrc.flight.supervisor import LAND
 from mavadrc.mavlink.link import M
 from mavadrc.mission.takeoff import YAW_RATE
 from mavadrc.mission.trajectories import Reference
-from mavadrc.flight.supervisor import LAND
 
 #: s the vehicle must stay past the safety's max_tracking_error before the mission stops
 TRACKING_LOST_S = 1.0

@@ -10,11 +10,11 @@ import time
 from mavadrc.design.fitworker import FitWorker
 from mavadrc.design.identify import load_fitting
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import TIMEOUT, LinkError, M, result_name
 from mavadrc.flight.rangefinder import RANGE_HZ
-from mavadrc.mavlink.sequence import sequence_for
 from mavadrc.flight.state import vehicle_mode
 from mavadrc.flight.truth import TRUTH_HZ, TruthTrack
+from mavadrc.mavlink.link import TIMEOUT, LinkError, M, result_name
+from mavadrc.mavlink.sequence import sequence_for
 
 #: vehicle time (s) over which the achieved sample rate is measured before arming
 MEASURE_S = 1.0

@@ -9,8 +9,15 @@ from mavadrc.control.rotations import level_quat, wrap_pi
 from mavadrc.design.margin import margin_text, prediction_text
 from mavadrc.errors import FlightError
 from mavadrc.mission.identification import HANDOVER_S, TAKEOFF_HANDOVER_S, leg_speed_of, windows_in
-from mavadrc.mission.takeoff import (LIFTOFF_HEIGHT, SPOOL_S, TAKEOFF_RAMP_PER_S, TAKEOFF_WAIT_M,
-                                     TAKEOFF_WAIT_MAX_S, lifted_off, spool_thrust)
+from mavadrc.mission.takeoff import (
+    LIFTOFF_HEIGHT,
+    SPOOL_S,
+    TAKEOFF_RAMP_PER_S,
+    TAKEOFF_WAIT_M,
+    TAKEOFF_WAIT_MAX_S,
+    lifted_off,
+    spool_thrust,
+)
 from mavadrc.mission.trajectories import Reference
 
 

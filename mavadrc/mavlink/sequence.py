@@ -7,7 +7,6 @@ in the companion branches on the autopilot's name.
 """
 
 from mavadrc.errors import FlightError
-
 from mavadrc.mavlink.link import M, mavutil  # mavutil as link imports it (MAVLink 2)
 
 

@@ -24,20 +24,19 @@ from pathlib import Path
 
 import numpy as np
 
+from mavadrc.control.kernels import AGE_MAX
+from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
+from mavadrc.control.position import DRAG_MAX, THRUST_ESTIMATE_S
+from mavadrc.mission import trajectories as T
+from mavadrc.mission.identification import ALTITUDE
 from sim.sensors import CLOCK_RATES, WANDER_CORNER_HZ
 from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
-
-from mavadrc.mission import trajectories as T
-from mavadrc.control.kernels import AGE_MAX
-from mavadrc.control.position import DRAG_MAX, THRUST_ESTIMATE_S
-from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
-from mavadrc.mission.identification import ALTITUDE
 
 KINDS = ("adrc", "ladrc", "pd", "pid")
 #: what a controller's ``thrust_tilt`` may say (:class:`ControllerSpec`)
 THRUST_TILTS = ("commanded", "measured")
 #: what flies the takeoff of a flight that identifies its vehicle (``takeoff``): the safe
-#: LADRC, or a PID on the measured velocity (mavadrc.flight.flight.TAKEOFF_KIND)
+#: LADRC, or a PID on the measured velocity (mavadrc.design.gains.TAKEOFF_KIND)
 TAKEOFFS = ("safe", "pid")
 #: a land segment's last FINAL_HEIGHT metres go at most FINAL_SPEED (peak): an altitude
 #: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
@@ -136,7 +135,7 @@ class Mission:
     out: str = "runs"
     transit_speed: float = 1.0
     transit_accel: float = 2.0
-    #: ``input_lag: auto`` resolved before flying (mavadrc.design.identify.with_identified): the fit
+    #: ``input_lag: auto`` resolved before flying (mavadrc.fast.identify.with_identified): the fit
     identification: dict = None
 
     def with_identification(self):

@@ -1,9 +1,10 @@
 """The takeoff's rules, shared by a flight over MAVLink and the in-process fast path: the thrust
 spooled up on the ground, when the vehicle has lifted off, how fast the heading turns."""
 import math
-import numpy as np
-from mavadrc.control.jit import jit
 
+import numpy as np
+
+from mavadrc.control.jit import jit
 
 SPOOL_S = 0.5  # thrust ramp on the ground before the mission clock starts
 

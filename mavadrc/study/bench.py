@@ -14,11 +14,9 @@ import time
 
 import numpy as np
 
-from sim.bench import median_us
-
 from mavadrc.control import PD, AttitudeController, HanADRC, LinearADRC, PositionController
 from mavadrc.flight.embedded import free_udp_port, udp_sink
-
+from sim.bench import median_us
 
 #: the peers measured beside our kernels when installed, and how to install them
 PEERS = ("pyadrc", "rotorpy")
@@ -190,7 +188,7 @@ def _longest_gap_ms(work, period_s=0.002):
 def fit_beside_loop_figures():
     """The identification a real-time flight makes after its doublets (thesis_spiral_wind's, on
     the bundled Crazyflie in process: the fit and the LADRC made with it, with its margins,
-    :func:`~mavadrc.flight.flight.fit_and_make`) beside a loop that sleeps 2 ms a turn: the loop's
+    :func:`~mavadrc.design.gains.fit_and_make`) beside a loop that sleeps 2 ms a turn: the loop's
     longest pause with it in a thread (as flights made it before) and in the fits' own process
     (:mod:`mavadrc.design.fitworker`, started and warmed first), each the worst of three."""
     from mavadrc.design.fitworker import FitWorker

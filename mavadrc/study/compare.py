@@ -15,9 +15,9 @@ import sys
 import time
 from pathlib import Path
 
+from mavadrc.errors import UsageError
 from mavadrc.flight.console import counted
 from mavadrc.study.experiment import load_experiment, run_task
-from mavadrc.errors import UsageError
 from mavadrc.study.pool import default_workers, process_pool, stop_pool
 
 RESULTS_VERSION = 1

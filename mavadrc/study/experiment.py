@@ -57,10 +57,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
-
-from mavadrc.mission.config import KINDS, read_controller, mission_from_section
 from mavadrc.flight.record import attitude_oscillation, error_figures
+from mavadrc.mission.config import KINDS, mission_from_section, read_controller
+from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
 # the vehicle's own attitude loop when a scenario asks for the one matching the controller
@@ -154,7 +153,7 @@ class Experiment:
             m.controller = dataclasses.replace(m.controller, rate_hz=sc.sample_rate_hz)
         if sc.input_model_scale != 1.0 and "input_lag" in m.controller.gains:
             if m.controller.gains["input_lag"] == "auto":
-                # scaled once identified (mavadrc.design.identify.with_identified)
+                # scaled once identified (mavadrc.fast.identify.with_identified)
                 m.input_model_scale = sc.input_model_scale
             else:
                 g = m.controller.gains
@@ -421,7 +420,7 @@ def summarise(t, ref, pos, acc_cmd, acc_applied, thrust, *, settle_s, duration, 
 
 def _never_lifted(ref, pos):
     """Whether a run that starts on the ground (the first sample) stayed there while its
-    reference rose half a metre above it (:data:`mavadrc.flight.ground.LIFTOFF_HEIGHT` never reached)."""
+    reference rose half a metre above it (:data:`mavadrc.mission.takeoff.LIFTOFF_HEIGHT` never reached)."""
     from mavadrc.mission.takeoff import LIFTOFF_HEIGHT
 
     ground = pos[0, 2]
@@ -451,10 +450,22 @@ def _yaw_step(t, yaw, ref_yaw):
 def run_inprocess(exp, i, j, seed, keep_log=False, spec=None):
     """Scenario i x controller j x seed on the fast path; returns (record, log or None).
     ``spec``: other gains for controller j (a ControllerSpec of the same kind)."""
-    from mavadrc.fast.inprocess import L_ACC, L_ACC_CMD, L_DIST, L_PITCH, L_POS, L_REF, L_REF_ACC, L_REF_YAW, L_ROLL, L_T, L_THRUST, L_YAW
     from mavadrc.fast.fly import fly_inprocess
-
     from mavadrc.fast.identify import with_identified
+    from mavadrc.fast.inprocess import (
+        L_ACC,
+        L_ACC_CMD,
+        L_DIST,
+        L_PITCH,
+        L_POS,
+        L_REF,
+        L_REF_ACC,
+        L_REF_YAW,
+        L_ROLL,
+        L_T,
+        L_THRUST,
+        L_YAW,
+    )
     m = with_identified(exp.mission(i, j, spec), exp.controllers[j].kind, seed)
     t0 = time.perf_counter()
     r = fly_inprocess(m, kind=exp.controllers[j].kind, seed=seed)
@@ -474,11 +485,10 @@ def run_mavlink(exp, i, j, seed, out_dir):
     """The same run flown over MAVLink against the bundled vehicle in lockstep."""
     import io
 
-    from mavadrc.flight.fly import fly
-    from mavadrc.fast.inprocess import MISSION_START
-    from mavadrc.flight.record import read_table
-
     from mavadrc.fast.identify import with_identified
+    from mavadrc.fast.inprocess import MISSION_START
+    from mavadrc.flight.fly import fly
+    from mavadrc.flight.record import read_table
     kind = exp.controllers[j].kind
     if kind == "oracle":
         raise ValueError("the oracle needs the simulator's internals: it runs in process only")

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mavadrc.control.rotations import quats_to_euler
 from mavadrc.flight import record
 from mavadrc.flight.truth import reference_at
-from mavadrc.control.rotations import quats_to_euler
 
 #: resolution of every PNG, dots per inch
 DPI = 150

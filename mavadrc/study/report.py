@@ -519,8 +519,8 @@ def _scenario_figure(job):
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from mavadrc.study.figures import MIN_SPAN_ACC, MIN_SPAN_M, min_span, label_3d
     from mavadrc.fast.inprocess import L_DIST, L_POS, L_REF, L_T, L_WRENCH, L_Z3
+    from mavadrc.study.figures import MIN_SPAN_ACC, MIN_SPAN_M, label_3d, min_span
 
     path, title, settle_s, runs = job
     colour = {name: f"C{k}" for k, (name, _, _) in enumerate(runs)}

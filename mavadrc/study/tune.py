@@ -1,7 +1,7 @@
 """`mavadrc tune`: search a controller's bandwidths to minimise the RMS error of an experiment.
 
 The search space is the bandwidth parameterisation every kind shares (Gao's for LADRC, the same
-shorthand for the others, see :func:`mavadrc.flight.flight.make_controller`): horizontal and vertical
+shorthand for the others, see :func:`mavadrc.design.gains.make_controller`): horizontal and vertical
 controller bandwidths ``wc`` and, for the observer kinds, the observer-to-controller ratio
 ``wo / wc`` (up to 6: beyond it the loop through the vehicle's attitude response has too little
 margin left); for the classical ADRC also fhan's acceleration bound ``r`` and fal's linear zone
@@ -23,11 +23,15 @@ import sys
 
 import numpy as np
 
-from sim.yamlio import choose, did_you_mean
-
-from mavadrc.study.pool import default_workers, process_pool, stop_pool
 from mavadrc.flight.console import counted
-from mavadrc.study.experiment import experiment_from_text, goal_covers, load_experiment, run_inprocess
+from mavadrc.study.experiment import (
+    experiment_from_text,
+    goal_covers,
+    load_experiment,
+    run_inprocess,
+)
+from mavadrc.study.pool import default_workers, process_pool, stop_pool
+from sim.yamlio import choose, did_you_mean
 
 INFEASIBLE_COST = 10.0
 TUNING_SEEDS = 1000  # the first seed a search uses
