@@ -3,6 +3,7 @@ telemetry shows it (:class:`Vehicle`), the phase and when it began (:class:`Phas
 mission's frame and progress (:class:`Progress`), and a condition's duration (:class:`Held`)."""
 
 import time
+from dataclasses import dataclass, field
 
 from mavadrc.flight.rangefinder import RangeTrack
 from mavadrc.mavlink.sequence import mode_name
@@ -27,15 +28,15 @@ class Held:
         return now - self.since >= seconds
 
 
+@dataclass
 class PhaseClock:
     """The flight's phase ("connect", "setup", "measure", "mode", "arming", "spoolup",
     "mission", "touchdown", "cut", "disarming", "failsafe", "done"), the vehicle time it began
     at (``t0``, None before a sample) and the wall time (``wall``)."""
 
-    def __init__(self):
-        self.phase = "connect"
-        self.t0 = None
-        self.wall = time.monotonic()
+    phase: str = "connect"
+    t0: float | None = None
+    wall: float = field(default_factory=time.monotonic)
 
     def enter(self, phase, s):
         self.phase = phase
@@ -43,59 +44,59 @@ class PhaseClock:
         self.wall = time.monotonic()
 
 
+@dataclass
 class Vehicle:
     """The vehicle flown, as its telemetry and its answers show it: the latest sample and
     attitude, its land detector, who it is (``identity``, ``seq``: the autopilot's
     :class:`~mavadrc.mavlink.sequence.Sequence`, known once connected), where each figure the
     flight uses came from (``sources``), the streams asked, and whether it is taken over."""
 
-    def __init__(self, takeover, bundled):
-        self.seq = None
-        self.identity = {}
-        self.sources = {}
-        self.streams = {}
-        self.takeover = takeover
-        self.takeover_in_air = False
-        self.bundled = bundled  # None: find out from AUTOPILOT_VERSION
-        self.motor_delay = 0.0
-        self.last = None  # latest accepted Sample
-        self.yaw = 0.0
-        self.cos_tilt = 1.0
-        self.attitude_ms = None  # the newest ATTITUDE's time_boot_ms
-        self.landed_state = None
-        self.landed_state_wall = None
-        self.air_said = False  # the autopilot said IN_AIR during the mission
-        self.samples_seen = 0  # accepted samples, every phase
-        self.last_sample_wall = None
-        # lockstep: when we were done with the last sample (work after its setpoint, such as
-        # the identification's fit, holds the vehicle, which waits for the next setpoint)
-        self.handled_wall = 0.0
-        self.in_control_seen = False  # the mode that takes setpoints confirmed once
+    takeover: bool = False
+    bundled: bool | None = None  # None: find out from AUTOPILOT_VERSION
+    seq: object = None
+    identity: dict = field(default_factory=dict)
+    sources: dict = field(default_factory=dict)
+    streams: dict = field(default_factory=dict)
+    takeover_in_air: bool = False
+    motor_delay: float = 0.0
+    last: object = None  # latest accepted Sample
+    yaw: float = 0.0
+    cos_tilt: float = 1.0
+    attitude_ms: int | None = None  # the newest ATTITUDE's time_boot_ms
+    landed_state: int | None = None
+    landed_state_wall: float | None = None
+    air_said: bool = False  # the autopilot said IN_AIR during the mission
+    samples_seen: int = 0  # accepted samples, every phase
+    last_sample_wall: float | None = None
+    # lockstep: when we were done with the last sample (work after its setpoint, such as the
+    # identification's fit, holds the vehicle, which waits for the next setpoint)
+    handled_wall: float = 0.0
+    in_control_seen: bool = False  # the mode that takes setpoints confirmed once
 
 
+@dataclass
 class Progress:
     """The mission's frame and how far it has got: the takeoff spot (``origin``), the
     trajectory and its segments (``phases``: (start s, name)), the vehicle time the mission
     clock started at (``t0``; it moves on while a takeoff waits), the lift-off, and how it
     ended."""
 
-    def __init__(self, mission):
-        self.m = mission
-        self.origin = None
-        self.origin_moved_m = None  # how far the estimate moved on the ground before the mission
-        self.traj = None
-        self.phases = []
-        self.t0 = None  # vehicle time of mission time 0
-        self.start = None  # the mission's start as summary.json says it (the same, once set)
-        self.lifted = False
-        self.waiting = False  # this sample's reference waits for the lift-off
-        self.steps = 0
-        self.descent_from = None  # where the final descent past the mission's end starts
-        self.final_yaw = 0.0
-        self.land_wall = None  # wall clock the final land segment began at
-        self.handed_over = False  # the mission ended in the air, as planned
-        self.touchdown_seen = False
-        self.disarm_confirmed = False
+    m: object  # the mission flown
+    origin: object = None  # the takeoff spot (NED), set in the measure phase
+    origin_moved_m: float | None = None  # how far the estimate moved on the ground before
+    traj: object = None
+    phases: list = field(default_factory=list)
+    t0: float | None = None  # vehicle time of mission time 0
+    start: float | None = None  # the mission's start as summary.json says it
+    lifted: bool = False
+    waiting: bool = False  # this sample's reference waits for the lift-off
+    steps: int = 0
+    descent_from: object = None  # where the final descent past the mission's end starts
+    final_yaw: float = 0.0
+    land_wall: float | None = None  # wall clock the final land segment began at
+    handed_over: bool = False  # the mission ended in the air, as planned
+    touchdown_seen: bool = False
+    disarm_confirmed: bool = False
 
     def in_final_land(self, t):
         """Whether mission time ``t`` is in the mission's closing land segment."""
@@ -113,9 +114,14 @@ class Progress:
                 name = n
         return name
 
-    def height(self, s):
-        """Sample ``s``'s height above the takeoff spot (m)."""
-        return float(self.origin[2] - s.pos[2])
+
+@dataclass
+class Tracks:
+    """Measures set beside the flight's estimate: a simulator's true state (``truth``, a
+    :class:`~mavadrc.flight.truth.TruthTrack` once asked for) and a downward range finder."""
+
+    truth: object = None
+    rangefinder: RangeTrack = field(default_factory=RangeTrack)
 
 
 def vehicle_mode(link, custom_mode=None):
@@ -125,12 +131,3 @@ def vehicle_mode(link, custom_mode=None):
     if custom_mode is None:
         return "unknown mode"
     return mode_name(link.autopilot, custom_mode)
-
-
-class Tracks:
-    """Measures set beside the flight's estimate: a simulator's true state (``truth``, a
-    :class:`~mavadrc.flight.truth.TruthTrack` once asked for) and a downward range finder."""
-
-    def __init__(self):
-        self.truth = None
-        self.rangefinder = RangeTrack()
