@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 
 from .firmware import position as PL
 from .vehicle import advance

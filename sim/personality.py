@@ -32,7 +32,7 @@ log = logging.getLogger("mavadrc.sitl")
 #: the message each autopilot's simulator sends its true state in, and the earth radius (m) it
 #: projects its local frame with (PX4 SIH: CONSTANTS_RADIUS_OF_EARTH; ArduPilot SITL: the radius
 #: of its LOCATION_SCALING_FACTOR).  The companion reads them back with its own table,
-#: mavadrc.truth.SOURCES; tests/test_truth.py holds the two equal.
+#: mavadrc.flight.truth.SOURCES; tests/test_truth.py holds the two equal.
 TRUTH_RADIUS = {"HIL_STATE_QUATERNION": 6371000.0, "SIM_STATE": 6378137.0}
 
 # behaviours of the simulated autopilot

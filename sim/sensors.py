@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 from sim.physics import IX_POS, IX_Q, IX_VEL, IX_W, NX
 
 __all__ = ["CLOCK_RATES", "Sensors", "TYPICAL_NOISE", "WANDER_CORNER_HZ", "measure_into", "perturb",

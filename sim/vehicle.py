@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from mavadrc.control import geometry as G
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 
 from . import physics as phys
 from .firmware import attitude as A

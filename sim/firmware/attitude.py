@@ -46,7 +46,7 @@ import numpy as np
 
 from mavadrc.control import AttitudeController
 from mavadrc.control import kernels as K
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 from mavadrc.control.attitude import attitude_update
 from mavadrc.control.rotations import quat_to_euler
 

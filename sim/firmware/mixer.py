@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 
 # layout of the mixer parameter vector
 MX_B = 0  # 16: inverse allocation, row-major, wrench -> squared rotor speeds

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from mavadrc.control import geometry as G
-from mavadrc.control._jit import jit
+from mavadrc.control.jit import jit
 from mavadrc.control.rotations import wrap_pi
 
 from . import attitude as A
