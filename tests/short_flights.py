@@ -1,9 +1,9 @@
 """The short hover the companion's fault tests fly, and how they fly it: over MAVLink against the
-bundled vehicle, through the lossy-link proxy of ``lossy_link.py``, in real time."""
+bundled vehicle, through the lossy-link proxy of ``sim/lossy/``, in real time."""
 
 import io
 
-from lossy_link import start_lossy_vehicle
+from sitl_helpers import start_lossy_vehicle
 
 from mavadrc.flight.fly import fly
 from mavadrc.mission.config import load_mission

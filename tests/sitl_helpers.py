@@ -11,6 +11,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from mavadrc.flight.embedded import free_tcp_port, free_udp_port, udp_sink  # noqa: F401  (re-exported)
+from sim.lossy import LossyLink
 from sim.server import SitlServer
 from sim.vehicle import SimVehicle
 
@@ -46,6 +47,19 @@ def start_vehicle(autopilot="px4", vehicle="crazyflie", lockstep=False, signing_
                   params=params, clock_rate=clock_rate)
     srv.start()
     return srv, port
+
+
+def start_lossy_vehicle(*, link_seed=0, companion_port=None, **vehicle_kw):
+    """A real-time bundled vehicle (:func:`start_vehicle` with ``**vehicle_kw``) behind a
+    started :class:`sim.lossy.LossyLink`; returns (server, link).  The companion connects to
+    ``link.companion_url``.  Stop both: ``link.stop(); server.stop()``."""
+    srv, port = start_vehicle(**vehicle_kw)
+    try:
+        link = LossyLink(companion_port or free_udp_port(), vehicle_port=port, seed=link_seed)
+    except Exception:
+        srv.stop()
+        raise
+    return srv, link.start()
 
 
 class Client:

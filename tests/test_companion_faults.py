@@ -2,7 +2,7 @@
 
 Each test flies the companion, over MAVLink, against the bundled vehicle behaving like the real
 autopilots (1 Hz heartbeats, PX4's failsafes, ArduCopter's arming delay and landing detector),
-through the lossy-link proxy of ``tests/lossy_link.py`` where the fault is the link's: lost
+through the lossy-link proxy of ``sim/lossy/`` where the fault is the link's: lost
 samples, lost commands and answers, a blackout, a NaN in one sample, a slow stream, a second
 companion, a wrong signing key.  The flights are in real time (a proxy cannot delay a lockstep
 clock), on a short hover in a 1 m/s breeze.  The ground's faults and the vehicle's own numbers

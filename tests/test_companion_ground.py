@@ -3,7 +3,7 @@ vehicle heavier than told, ArduCopter's arming delay, height estimates that drif
 a landing, a touchdown seen late, a vehicle that tips over, an autopilot's hover thrust and angle
 boost, and the ground carrying the vehicle mid-mission.  The flights are over MAVLink against the
 bundled vehicle: in lockstep, or in real time through the lossy-link proxy of
-``tests/lossy_link.py`` where a test moves the vehicle's estimate on the wire.
+``sim/lossy/`` where a test moves the vehicle's estimate on the wire.
 """
 
 import io

@@ -1,4 +1,4 @@
-"""The lossy-link fixture (tests/lossy_link.py) on its own: plain sockets and pymavlink frames on
+"""The lossy-link fixture (sim/lossy/) on its own: plain sockets and pymavlink frames on
 both sides, and once with the bundled vehicle behind it."""
 
 import math
@@ -10,9 +10,10 @@ import time
 
 import pytest
 
-from lossy_link import LPN, LossyLink, LossyLinkError, split_frames, start_lossy_vehicle
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
+from sitl_helpers import Client, free_udp_port, start_lossy_vehicle, start_vehicle, wait_until
+
+from sim.lossy import LPN, LossyLink, LossyLinkError, split_frames
 
 M = mavlink
 ARM = M.MAV_CMD_COMPONENT_ARM_DISARM

@@ -1,5 +1,5 @@
-"""A faulty link in front of any autopilot that speaks MAVLink over UDP: the tests' lossy proxy
-(``tests/lossy_link.py``) run on its own, so a real PX4 SITL (or a vehicle on a bench) can be
+"""A faulty link in front of any autopilot that speaks MAVLink over UDP: the lossy proxy
+(``sim/lossy/``) run on its own, so a real PX4 SITL (or a vehicle on a bench) can be
 flown through loss, latency, jitter and blackouts as the bundled vehicle is with ``mavadrc sitl
 --link-down/--link-up``.
 
@@ -17,17 +17,12 @@ Hz).  Ctrl-C ends it and prints what it dropped.
 """
 
 import argparse
-import os
 import signal
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests"))
-sys.path.insert(0, os.path.join(HERE, ".."))
-
-from lossy_link import LossyLink  # noqa: E402
-from sim.link_flags import parse_way  # noqa: E402
+from sim.link_flags import parse_way
+from sim.lossy import LossyLink
 
 
 def _address(text):
