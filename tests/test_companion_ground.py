@@ -421,7 +421,7 @@ safety: {set_guid_options: true}
     mission = load_mission(path)
     compensated, a = fly(mission, out=tmp_path / "a", lockstep=True,
                          progress=False, stream=io.StringIO())
-    monkeypatch.setattr(S.ArduPilotSequence, "thrust_factor", lambda self, flight: 1.0)
+    monkeypatch.setattr(S.ArduPilotSequence, "thrust_factor", lambda self, cos_tilt: 1.0)
     boosted, b = fly(mission, out=tmp_path / "b", lockstep=True, progress=False,
                      stream=io.StringIO())
 
@@ -445,7 +445,7 @@ def test_the_autopilot_saying_on_the_ground_mid_mission_ends_the_flight(tmp_path
     (after its IN_AIR) ends the flight with the autopilot's landing, and the summary says why
     and does not call it a flown mission.  (The companion's own reading of the ground carrying
     the vehicle, which comes first here, is put out of reach: its own test is below.)"""
-    import mavadrc.flight.flight as F
+    import mavadrc.flight.mission_step as F
     monkeypatch.setattr(F, "CARRIED_SHARE", 10.0)
     mission = short_mission(tmp_path, hover=12, extra="sim: {height_drift_mps: 0.2}\n")
     out = io.StringIO()

@@ -194,7 +194,7 @@ def test_the_lag_is_fitted_again_with_the_drag_learnt_and_flown_without_a_jump(t
     lockstep: once the drag has been learnt REFINE_AFTER_S, the doublets are fitted again with it
     known (there 0.260 s for the free fit's 0.271; any change flown here) and the controller made
     with it takes over mid-figure where the other was: no jump in the error."""
-    import mavadrc.flight.flight as F
+    import mavadrc.flight.identification as F
     from mavadrc.cli.main import main
     from mavadrc.flight.record import read_table
     monkeypatch.setattr(F, "REFINE_TOLERANCE", 0.0)

@@ -149,7 +149,7 @@ def test_a_controller_built_for_flight_has_every_kernel_the_record_reads_ready()
     import sys
 
     code = ("from mavadrc.control import kernels as K\n"
-            "from mavadrc.flight.flight import built, run_once\n"
+            "from mavadrc.design.gains import built, run_once\n"
             "from mavadrc.mission.config import ControllerSpec\n"
             "ready = lambda: bool(getattr(K.td_output, 'signatures', [True]))\n"
             "before = ready()\n"

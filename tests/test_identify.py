@@ -329,7 +329,7 @@ def test_a_flight_starts_without_scipys_fitting_and_loads_it_only_to_identify():
     import subprocess
     import sys
     code = ("import sys, mavadrc.flight.fly\n"
-            "from mavadrc import identify as I\n"
+            "from mavadrc.design import identify as I\n"
             "seen = lambda: [m in sys.modules for m in ('scipy.signal', 'scipy.optimize')]\n"
             "before = seen()\n"
             "ready = [bool(k.overloads) for k in (I.lagged, I.lagged_change)]\n"

@@ -130,7 +130,7 @@ def _main():
 
     from mavadrc.design.identify import load_fitting
 
-    importlib.import_module(f"{__package__}.flight")  # fit_and_make's module, imported now
+    importlib.import_module(f"{__package__}.gains")  # fit_and_make's module, imported now
     load_fitting()
     serve(inp, out)
 
