@@ -460,23 +460,19 @@ def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitt
     """Until the line is fitted the companion asks every 0.25 s (it is fitted a second after
     the first answers), then once a second; a vehicle that never answers is asked 16 times
     quickly, then once a second."""
-    from types import SimpleNamespace
-
-    import mavadrc.mavlink.link as L
+    import mavadrc.mavlink.timesync as T
 
     clock = [0.0]
-    monkeypatch.setattr(L.time, "monotonic_ns", lambda: int(clock[0] * 1e9))
-    Link, TimeSync = L.Link, L.TimeSync
+    monkeypatch.setattr(T.time, "monotonic_ns", lambda: int(clock[0] * 1e9))
 
     def run(answer):
         sent = []
-        ts = TimeSync()
-        link = SimpleNamespace(timesync=ts, _timesync_wall=-10.0,
-                               mav=SimpleNamespace(timesync_send=lambda tc1, ts1: None))
+        ts = T.TimeSync()
+        ts._asked_wall = -10.0  # the first request at once
         for now in np.arange(0.0, 10.0, 0.01):
             clock[0] = now
             n = ts.asked
-            Link.timesync_poll(link, now)
+            ts.poll(now, lambda tc1, ts1: None)
             if ts.asked > n:
                 sent.append(now)
                 if answer:  # our clock in ns is the vehicle's plus 3 s; round trip 0.2 ms

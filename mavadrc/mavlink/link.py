@@ -1,40 +1,24 @@
-"""The companion's MAVLink link: connection strings, one chosen autopilot, commands, parameters,
-time sync and telemetry bookkeeping.
-
-Connection strings are accepted as pymavlink and MAVSDK users write them::
-
-    udpin:0.0.0.0:14540   udpin://0.0.0.0:14540   udp://:14540   udp://0.0.0.0:14540
-    udpout:HOST:PORT      udpout://HOST:PORT      tcp:HOST:PORT   tcp://HOST:PORT
-    /dev/ttyACM0          /dev/ttyUSB0:57600      /dev/ttyUSB0,57600   serial:///dev/ttyUSB0:57600
-
-UDP is served by a socket of our own, bound without SO_REUSEADDR: a port another program already
-listens on is an error that names it (two companions on one port would both command the
-vehicle).  TCP and serial links go through pymavlink's mavutil.
+"""The companion's MAVLink link: one chosen autopilot, commands, parameters, time sync and
+telemetry bookkeeping, over a :class:`~mavadrc.mavlink.transport.Transport` (connection strings,
+UDP, signing, the tlog).
 
 One autopilot is flown: the first autopilot heartbeat heard names it, or ``sysid`` picks it when
 several systems are heard.  Messages of any other system are dropped and counted, and commands
-are addressed to the chosen one.  Every frame in both directions goes to an optional tlog writer
-as it passes.  With a signing key everything sent is signed and everything received must be.
+are addressed to the chosen one.
 """
 
 import collections
-import errno
 import logging
 import math
-import os
-import re
-import select
-import socket
 import struct
 import time
 
-os.environ.setdefault("MAVLINK20", "1")  # speak MAVLink 2; must precede pymavlink's dialect import
+from mavadrc.mavlink import px4_events
+from mavadrc.mavlink.dialect import M, mavutil  # noqa: F401 (mavutil: as importers had it)
+from mavadrc.mavlink.errors import LinkError
+from mavadrc.mavlink.timesync import TimeSync
+from mavadrc.mavlink.transport import Transport, parse_url  # noqa: F401 (parse_url: importers)
 
-from pymavlink import mavutil  # noqa: E402
-
-from mavadrc.mavlink import px4_events  # noqa: E402
-
-M = mavutil.mavlink
 log = logging.getLogger("mavadrc.mavlink.link")
 
 RESULT_NAMES = {v: k for k, v in vars(M).items() if k.startswith("MAV_RESULT_")
@@ -47,10 +31,6 @@ TIMEOUT = -1
 #: commands whose every answer the user sees (all others are shown when not ACCEPTED)
 ANNOUNCED = (M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_LAND,
              M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-#: accepted unsigned on a signed link (as PX4 and ArduPilot do: radios cannot sign)
-UNSIGNED_ALLOWED = (M.MAVLINK_MSG_ID_RADIO_STATUS,)
-#: 1 Jan 2015, the epoch of MAVLink 2 signing timestamps
-SIGNING_EPOCH = 1420070400
 
 
 #: sequence numbers jumped over that a late frame may still fill in (a reordering link)
@@ -78,92 +58,6 @@ def count_sequence(last, seq, skipped):
     while skipped and (seq - skipped[0]) & 0xFF >= 128:
         skipped.popleft()
     return seq, gap
-
-
-class LinkError(RuntimeError):
-    """The link or the vehicle did not do what the flight needs; the message says what."""
-
-
-
-def parse_url(url):
-    """(pymavlink device string, baud) for a connection string in any of the accepted forms."""
-    u = url.strip()
-    baud = 57600
-    m = re.fullmatch(r"serial://(/[^:,]+)(?:[:,](\d+))?", u)
-    if m:
-        return m.group(1), int(m.group(2) or baud)
-    m = re.fullmatch(r"(/dev/[^:,]+|COM\d+)(?:[:,](\d+))?", u)
-    if m:
-        return m.group(1), int(m.group(2) or baud)
-    m = re.fullmatch(r"(udpin|udpout|udp|tcp|tcpin)(?::(?://)?|://)([^:]*):(\d+)", u)
-    if not m:
-        raise LinkError(f"cannot read connection string {url!r}: use udpin:HOST:PORT, "
-                        "udpin://HOST:PORT, udp://:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a "
-                        "serial device with a baud rate (/dev/ttyUSB0:57600)")
-    scheme, host, port = m.group(1), m.group(2), m.group(3)
-    if not 0 < int(port) < 65536:
-        raise LinkError(f"{url!r}: port {port} is not a port number (1 to 65535)")
-    if scheme == "udp":  # MAVSDK: udp://[host]:port listens
-        scheme = "udpin"
-    if scheme in ("udpin", "tcpin") and host == "":
-        host = "0.0.0.0"
-    if scheme in ("udpout", "tcp") and host == "":
-        raise LinkError(f"{url!r}: {scheme} needs a host to connect to")
-    return f"{scheme}:{host}:{port}", baud
-
-
-class UdpEndpoint:
-    """A UDP socket for one MAVLink peer.  ``udpin`` binds HOST:PORT (no SO_REUSEADDR, so a port
-    in use is an error) and answers the peer it hears; ``udpout`` sends to HOST:PORT from a
-    port of its own."""
-
-    def __init__(self, device, url):
-        scheme, host, port = device.split(":")
-        port = int(port)
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.peer = None
-        try:
-            if scheme == "udpin":
-                self.sock.bind((host, port))
-            else:
-                self.peer = (socket.gethostbyname(host), port)
-                self.sock.bind(("0.0.0.0", 0))
-        except OSError as exc:
-            self.sock.close()
-            if exc.errno == errno.EADDRINUSE:
-                raise LinkError(
-                    f"UDP port {port} is already in use by another program (another mavadrc "
-                    "fly, MAVProxy, QGroundControl?): two programs on one port would both "
-                    f"command the vehicle; stop it, or give another port in {url!r}") from None
-            raise LinkError(f"cannot open {url}: {exc}") from None
-        self.sock.setblocking(False)
-        self.last_from = None
-
-    def recv(self):
-        """One datagram (b"" when none is waiting)."""
-        try:
-            data, self.last_from = self.sock.recvfrom(65535)
-        except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-            return b""
-        return data
-
-    def select(self, timeout):
-        try:
-            readable, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
-        except InterruptedError:
-            return False
-        return bool(readable)
-
-    def write(self, buf):
-        peer = self.peer or self.last_from
-        if peer is not None:
-            try:
-                self.sock.sendto(buf, peer)
-            except OSError:
-                pass  # a full buffer or an unreachable peer: the datagram is lost, as on a radio
-
-    def close(self):
-        self.sock.close()
 
 
 class Command:
@@ -230,29 +124,10 @@ class Link:
     """A MAVLink connection as an onboard computer (component 191) to one autopilot."""
 
     def __init__(self, url, tlog=None, on_text=None, signing_key=None, sysid=None):
-        device, baud = parse_url(url)
+        self.transport = Transport(url, tlog=tlog, signing_key=signing_key)
         self.url = url
-        self.tlog = tlog
         self.on_text = on_text or (lambda sev, text: log.info("vehicle: %s", text))
         self.wanted_sysid = sysid
-        if device.startswith(("udpin:", "udpout:")):
-            self.conn = UdpEndpoint(device, url)
-            self.mav = M.MAVLink(self.conn, srcSystem=1, srcComponent=M.MAV_COMP_ID_ONBOARD_COMPUTER)
-            self.mav.robust_parsing = True
-            self._datagrams = True
-            self._answer_sender = device.startswith("udpin:")
-        else:
-            try:
-                self.conn = mavutil.mavlink_connection(
-                    device, baud=baud, source_system=1,
-                    source_component=M.MAV_COMP_ID_ONBOARD_COMPUTER, autoreconnect=True)
-            except (OSError, ImportError) as exc:
-                raise LinkError(f"cannot open {url}: {exc}") from exc
-            self.mav = self.conn.mav
-            self._datagrams = self._answer_sender = False
-        if signing_key is not None:
-            self._setup_signing(signing_key)
-        self.mav.set_send_callback(self._sent)
         self.target_system = 0
         self.autopilot = None
         self.heartbeat = None
@@ -262,9 +137,6 @@ class Link:
         self.commands = {}  # command id -> the latest Command sent
         self.params = {}  # name -> PARAM_VALUE
         self.messages = {}  # type -> the latest message of the chosen autopilot
-        self.sent = 0
-        self.bad_frames = 0
-        self.bad_signatures = 0
         self.other_system = 0
         # udpin: the address the chosen autopilot speaks from, and any other address that
         # speaks as the same system (another vehicle with its id: _one_source)
@@ -275,26 +147,32 @@ class Link:
         self._last_seq = None
         # sequence numbers jumped over and not yet seen (count_sequence)
         self._skipped = collections.deque(maxlen=SKIPPED_KEPT)
-        self._queue = collections.deque()
         self.timesync = TimeSync()
-        self._timesync_wall = 0.0
         self.on_message = None  # called with every message of the chosen autopilot
 
-    def _setup_signing(self, key):
-        s = self.mav.signing
-        s.secret_key = bytes(key)
-        s.sign_outgoing = True
-        s.link_id = 0
-        s.timestamp = int((time.time() - SIGNING_EPOCH) * 1e5)
-        s.allow_unsigned_callback = lambda _mav, msgid: msgid in UNSIGNED_ALLOWED
+    @property
+    def mav(self):
+        """The pymavlink sender (the transport's: it replaces it after a frame it choked on)."""
+        return self.transport.mav
 
-    def _sent(self, msg):
-        self.sent += 1
-        if self.tlog is not None:
-            self.tlog.write(msg.get_msgbuf())
+    @property
+    def conn(self):
+        return self.transport.conn
+
+    @property
+    def sent(self):
+        return self.transport.sent
+
+    @property
+    def bad_frames(self):
+        return self.transport.bad_frames
+
+    @property
+    def bad_signatures(self):
+        return self.transport.bad_signatures
 
     def close(self):
-        self.conn.close()
+        self.transport.close()
 
     # --- receiving ---------------------------------------------------------------------------
 
@@ -302,24 +180,13 @@ class Link:
         """Next message of the chosen autopilot (or None after ``timeout`` s), with the
         bookkeeping every message gets.
 
-        Over UDP a datagram is read and parsed whole (pymavlink's parser, CRC and signing
-        checks included) and its messages are handed out one by one; other links go through
-        mavutil message by message.  Frames that do not parse or fail the signature check are
-        dropped and counted (``bad_frames``, ``bad_signatures``), as are messages of other
-        systems (``other_system``).  The tlog is flushed before waiting for data.
+        The transport hands out the messages received (:meth:`Transport.next`).  Frames that do
+        not parse or fail the signature check are dropped and counted (``bad_frames``,
+        ``bad_signatures``), as are messages of other systems (``other_system``).
         """
         end = time.monotonic() + timeout
         while True:
-            if self._queue:
-                msg = self._queue.popleft()
-            elif self._datagrams:
-                msg = self._recv_datagram(max(0.0, end - time.monotonic()))
-            else:
-                if self.tlog is not None:
-                    self.tlog.flush()
-                msg = self.conn.recv_match(blocking=True, timeout=max(0.0, end - time.monotonic()))
-                if msg is not None and msg.get_type() != "BAD_DATA" and self.tlog is not None:
-                    self.tlog.write(msg.get_msgbuf())
+            msg = self.transport.next(end)
             if msg is None:
                 return None
             msg = self._book(msg)
@@ -335,12 +202,7 @@ class Link:
                 if text is not None:
                     self.on_text(ev.log_levels & 0x0F, text)
             return None
-        if t == "BAD_DATA":
-            reason = str(getattr(msg, "reason", ""))
-            if "ignature" in reason or "unsigned" in reason.lower():
-                self.bad_signatures += 1
-            else:
-                self.bad_frames += 1
+        if self.transport.bad(msg):
             return None
         src = msg.get_srcSystem()
         if t == "HEARTBEAT" and msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1 \
@@ -352,7 +214,7 @@ class Link:
             if self.target_system != 0:
                 self.other_system += 1
             return None
-        if self._answer_sender and not self._one_source(getattr(msg, "_from", None)):
+        if self.transport.answers_sender and not self._one_source(getattr(msg, "_from", None)):
             return None
         if msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1:
             self._count_seq(msg.get_seq())
@@ -387,7 +249,7 @@ class Link:
         elif t == "PARAM_VALUE":
             self.params[msg.param_id] = msg
         elif t == "TIMESYNC":
-            self._on_timesync(msg)
+            self.timesync.on_message(msg, self.mav.timesync_send)
         self.messages[t] = msg
         return msg
 
@@ -402,7 +264,7 @@ class Link:
             return True
         if self.source is None:
             self.source = frm
-            self.conn.peer = frm  # answer the chosen autopilot only
+            self.transport.answer_to(frm)  # answer the chosen autopilot only
             return True
         self.other_sources[frm] = self.other_sources.get(frm, 0) + 1
         return False
@@ -431,7 +293,7 @@ class Link:
 
     def _choose(self, hb):
         self.target_system = hb.get_srcSystem()
-        self.mav.srcSystem = self.target_system
+        self.transport.speak_as(self.target_system)
         if hb.autopilot == M.MAV_AUTOPILOT_PX4:
             self.autopilot = "px4"
         elif hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA:
@@ -440,49 +302,6 @@ class Link:
             raise LinkError(f"the autopilot of system {self.target_system} on {self.url} is "
                             f"neither PX4 nor ArduPilot (MAV_AUTOPILOT {hb.autopilot}); "
                             "mavadrc flies those two")
-
-    def _recv_datagram(self, timeout):
-        conn = self.conn
-        data = conn.recv()
-        if not data:  # waited for asleep, in lockstep too (see sim.server's loop)
-            if self.tlog is not None:
-                self.tlog.flush()
-            if not conn.select(timeout):
-                return None
-            data = conn.recv()
-            if not data:
-                return None
-        try:
-            msgs = self.mav.parse_buffer(data)
-        except Exception:  # whatever the parser chokes on is dropped, never fatal
-            self.bad_frames += 1
-            self.mav = self._fresh_parser()
-            return None
-        if self.mav.buf_len() > 0:  # a truncated frame: nothing of it carries over
-            self.bad_frames += 1
-            self.mav = self._fresh_parser()
-        if not msgs:
-            return None
-        if self.tlog is not None:
-            t_us = int(time.time() * 1e6)
-            for m in msgs:
-                if m.get_type() != "BAD_DATA":
-                    self.tlog.write(m.get_msgbuf(), t_us)
-        for m in msgs:
-            m._from = conn.last_from  # whose datagram (Link._one_source)
-        self._queue.extend(msgs[1:])
-        return msgs[0]
-
-    def _fresh_parser(self):
-        old = self.mav
-        mav = M.MAVLink(self.conn, srcSystem=old.srcSystem, srcComponent=old.srcComponent)
-        mav.robust_parsing = True
-        mav.signing = old.signing
-        mav.seq = old.seq
-        mav.send_callback = old.send_callback
-        mav.send_callback_args = old.send_callback_args
-        mav.send_callback_kwargs = old.send_callback_kwargs
-        return mav
 
     def wait_heartbeat(self, timeout=15.0, idle=None):
         """Wait for the autopilot's heartbeat (``sysid``'s, or the first one heard); identifies
@@ -524,23 +343,8 @@ class Link:
     # --- time sync ---------------------------------------------------------------------------
 
     def timesync_poll(self, now, period=1.0):
-        """Send a TIMESYNC request every ``period`` s (both PX4 and ArduPilot answer); every
-        0.25 s until the vehicle's clock is fitted (:class:`TimeSync`), so that a clock that
-        runs at another rate is followed within a second or two of the first answer (for 16
-        requests at most: a vehicle that does not answer is asked once a second)."""
-        if not self.timesync.fitted and self.timesync.asked < 16:
-            period = min(period, 0.25)
-        if now - self._timesync_wall >= period:
-            self._timesync_wall = now
-            ts1 = time.monotonic_ns()
-            self.timesync.sent(ts1)
-            self.mav.timesync_send(0, ts1)
-
-    def _on_timesync(self, msg):
-        if msg.tc1 == 0:  # the vehicle asks: answer with our clock
-            self.mav.timesync_send(time.monotonic_ns(), msg.ts1)
-        else:
-            self.timesync.answered(msg.tc1, msg.ts1, time.monotonic_ns())
+        """Send a TIMESYNC request every ``period`` s (:meth:`TimeSync.poll`)."""
+        self.timesync.poll(now, self.mav.timesync_send, period)
 
     # --- sending -----------------------------------------------------------------------------
 
@@ -622,111 +426,6 @@ class Link:
 
     def named_float(self, t_boot_ms, name, value):
         self.mav.named_value_float_send(int(t_boot_ms) & 0xFFFFFFFF, name.encode(), float(value))
-
-
-class TimeSync:
-    """Round trip, clock offset and the vehicle clock's rate from TIMESYNC exchanges.
-
-    A request carries our clock ``ts1`` (ns); the answer adds the vehicle's clock ``tc1`` (ns
-    since its boot, the clock of ``time_boot_ms``).  The round trip is ``now - ts1``; the
-    vehicle's clock read ``tc1`` about half a round trip before ``now``, so ``offset = tc1 -
-    (ts1 + now)/2`` maps our clock onto the vehicle's at our time ``(ts1 + now)/2``, to within
-    half the round trip.
-
-    The vehicle's clock need not run at the rate of ours: a simulator's runs slow when its
-    loop cannot keep up (PX4 SITL's, SIH, ran 1.35 % slow on 2 cores, 2026-12-03), and two
-    crystals differ by tens of ppm.  So the offset is a line in our time: fitted through the
-    exchanges of the last :attr:`WINDOW_S` whose round trip is near the shortest among them
-    (within :attr:`RTT_SLACK` times it plus :attr:`RTT_SLACK_NS`: the least queued), and read
-    where it is asked.  With fewer than :attr:`MIN_FIT` of them, or spanning under
-    :attr:`MIN_SPAN_S`: the newest one's offset, at the rate last fitted (none before the
-    first fit).  On a loaded machine one exchange with a short round trip can leave too few of
-    the others near it; forgetting the rate then read a clock running 5 % slow as running at
-    ours (a test's real-time flight on the 2 shared cores).  An exchange with a short round trip that
-    lands more than :attr:`JUMP_NS` off the line says the vehicle's clock jumped (a reboot, a
-    time reset): the exchanges before it are forgotten.
-    """
-
-    WINDOW_S = 6.0
-    RTT_SLACK = 2.0
-    RTT_SLACK_NS = 1_000_000
-    MIN_FIT = 3
-    MIN_SPAN_S = 1.0
-    JUMP_NS = 50_000_000
-
-    def __init__(self):
-        self._pending = collections.deque(maxlen=16)
-        self.rtts = []  # every round trip measured (s)
-        self._recent = collections.deque()  # (our time at the exchange (ns), rtt_ns, offset_ns)
-        self._line = None  # (t0_ns, offset at t0 (ns), skew): offset(t) = o0 + skew (t - t0)
-        self.fitted = False  # whether the line is fitted (else: the newest exchange's offset)
-        self._fitted_skew = 0.0  # the rate of the last line fitted, kept while none can be
-        self.asked = 0  # requests sent
-
-    def sent(self, ts1):
-        self._pending.append(ts1)
-        self.asked += 1
-
-    def answered(self, tc1, ts1, now):
-        if ts1 not in self._pending:
-            return  # not ours, or a late duplicate
-        self._pending.remove(ts1)
-        rtt = now - ts1
-        if rtt < 0:
-            return
-        self.rtts.append(rtt * 1e-9)
-        mid = (ts1 + now) // 2
-        offset = tc1 - mid
-        if self._line is not None and rtt <= self._good_rtt() \
-                and abs(offset - self.offset_at(mid)) > self.JUMP_NS + rtt:
-            self._recent.clear()  # the vehicle's clock jumped
-        self._recent.append((mid, rtt, offset))
-        while self._recent and mid - self._recent[0][0] > self.WINDOW_S * 1e9:
-            self._recent.popleft()
-        self._fit()
-
-    def _good_rtt(self):
-        return self.RTT_SLACK * min(r for _, r, _ in self._recent) + self.RTT_SLACK_NS
-
-    def _fit(self):
-        good = self._good_rtt()
-        pts = [(t, o) for t, r, o in self._recent if r <= good]
-        t_new, o_new = pts[-1]
-        self.fitted = len(pts) >= self.MIN_FIT and t_new - pts[0][0] >= self.MIN_SPAN_S * 1e9
-        if not self.fitted:
-            self._line = (t_new, o_new, self._fitted_skew)
-            return
-        # least squares in seconds from the newest exchange (offsets in ns from its offset)
-        t = [(ti - t_new) * 1e-9 for ti, _ in pts]
-        o = [float(oi - o_new) for _, oi in pts]
-        tm, om = sum(t) / len(t), sum(o) / len(o)
-        skew_ns = sum((a - tm) * (b - om) for a, b in zip(t, o)) / \
-            sum((a - tm) ** 2 for a in t)  # ns per s
-        self._line = (t_new, o_new + int(round(om - skew_ns * tm)), skew_ns * 1e-9)
-        self._fitted_skew = skew_ns * 1e-9
-
-    @property
-    def offset_ns(self):
-        """The offset (ns) at the newest exchange (None before the first)."""
-        return None if self._line is None else self._line[1]
-
-    @property
-    def skew(self):
-        """How much faster the vehicle's clock runs than ours (-0.0135: 1.35 % slower; 0 until
-        the exchanges span :attr:`MIN_SPAN_S`, then the last fitted while no line can be)."""
-        return 0.0 if self._line is None else self._line[2]
-
-    def offset_at(self, now_ns):
-        t0, o0, skew = self._line
-        return o0 + int(round(skew * (now_ns - t0)))
-
-    def age(self, time_boot_ms, now_ns=None):
-        """Seconds since the vehicle took a sample stamped ``time_boot_ms`` (None before the
-        first exchange)."""
-        if self._line is None:
-            return None
-        now_ns = time.monotonic_ns() if now_ns is None else now_ns
-        return (now_ns + self.offset_at(now_ns) - time_boot_ms * 1_000_000) * 1e-9
 
 
 def result_name(result):
