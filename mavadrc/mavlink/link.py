@@ -7,15 +7,14 @@ several systems are heard.  Messages of any other system are dropped and counted
 are addressed to the chosen one.
 """
 
-import collections
 import logging
-import math
-import struct
 import time
 
-from mavadrc.mavlink import px4_events
+from mavadrc.mavlink import px4_events, setpoints
 from mavadrc.mavlink.dialect import M, mavutil  # noqa: F401 (mavutil: as importers had it)
 from mavadrc.mavlink.errors import LinkError
+from mavadrc.mavlink.params import Params
+from mavadrc.mavlink.sources import SKIPPED_KEPT, Sources, count_sequence  # noqa: F401
 from mavadrc.mavlink.timesync import TimeSync
 from mavadrc.mavlink.transport import Transport, parse_url  # noqa: F401 (parse_url: importers)
 
@@ -31,33 +30,6 @@ TIMEOUT = -1
 #: commands whose every answer the user sees (all others are shown when not ACCEPTED)
 ANNOUNCED = (M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_LAND,
              M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-
-
-#: sequence numbers jumped over that a late frame may still fill in (a reordering link)
-SKIPPED_KEPT = 64
-
-
-def count_sequence(last, seq, skipped):
-    """(the newest sequence number, frames to count lost) after a frame numbered ``seq`` where
-    ``last`` was the newest (None: the first).  A jump ahead counts the numbers jumped over as
-    lost and keeps them in ``skipped`` (a bounded deque); a frame behind the newest one that
-    fills one of them in was late, not lost, and is taken back (-1); any other frame behind is
-    a repeat (0).  A jittery link reorders frames: counted as gaps alone, 5 % of the samples
-    lost read as 23 % of the frames."""
-    if last is None:
-        return seq, 0
-    gap = (seq - last - 1) & 0xFF
-    if gap >= 128:  # behind the newest
-        if seq in skipped:
-            skipped.remove(seq)
-            return last, -1
-        return last, 0
-    for k in range(1, gap + 1):
-        skipped.append((last + k) & 0xFF)
-    # what is now half the sequence behind could only be matched by a later lap's number
-    while skipped and (seq - skipped[0]) & 0xFF >= 128:
-        skipped.popleft()
-    return seq, gap
 
 
 class Command:
@@ -120,56 +92,53 @@ class Command:
         return f"<{command_name(self.cmd)} {result_name(self.result)}>"
 
 
+def _part(part, name, doc=None):
+    """A read-only attribute of Link that is ``name`` of its part ``part``."""
+    return property(lambda self: getattr(getattr(self, part), name), doc=doc)
+
+
 class Link:
-    """A MAVLink connection as an onboard computer (component 191) to one autopilot."""
+    """A MAVLink connection as an onboard computer (component 191) to one autopilot.
+
+    The facade every caller uses, composed of parts each handed what it uses: the
+    :class:`~mavadrc.mavlink.transport.Transport` (the wire), the
+    :class:`~mavadrc.mavlink.sources.Sources` (which autopilot, and what is dropped or lost),
+    the :class:`~mavadrc.mavlink.params.Params` and the
+    :class:`~mavadrc.mavlink.timesync.TimeSync`.  Link itself routes each message received to
+    the part it concerns and keeps the autopilot's heartbeat and latest messages.
+    """
+
+    mav = _part("transport", "mav", "the pymavlink sender (replaced after a frame it choked on)")
+    conn = _part("transport", "conn")
+    sent = _part("transport", "sent")
+    bad_frames = _part("transport", "bad_frames")
+    bad_signatures = _part("transport", "bad_signatures")
+    wanted_sysid = _part("sources", "wanted_sysid")
+    target_system = _part("sources", "target_system")
+    autopilot = _part("sources", "autopilot")
+    systems_heard = _part("sources", "systems_heard")
+    other_system = _part("sources", "other_system")
+    source = _part("sources", "source")
+    other_sources = _part("sources", "other_sources")
+    frames_received = _part("sources", "frames_received")
+    frames_lost = _part("sources", "frames_lost")
+    params = _part("parameters", "values", "name -> the latest PARAM_VALUE")
 
     def __init__(self, url, tlog=None, on_text=None, signing_key=None, sysid=None):
         self.transport = Transport(url, tlog=tlog, signing_key=signing_key)
         self.url = url
         self.on_text = on_text or (lambda sev, text: log.info("vehicle: %s", text))
-        self.wanted_sysid = sysid
-        self.target_system = 0
-        self.autopilot = None
+        self.sources = Sources(url, sysid, by_address=self.transport.answers_sender,
+                               speak_as=self.transport.speak_as,
+                               answer_to=self.transport.answer_to)
+        self.parameters = Params(self.transport, self.sources, self.recv)
+        self.timesync = TimeSync()
         self.heartbeat = None
         self.heartbeat_wall = None  # time.monotonic() when self.heartbeat came
         self.heartbeats = 0
-        self.systems_heard = set()
         self.commands = {}  # command id -> the latest Command sent
-        self.params = {}  # name -> PARAM_VALUE
         self.messages = {}  # type -> the latest message of the chosen autopilot
-        self.other_system = 0
-        # udpin: the address the chosen autopilot speaks from, and any other address that
-        # speaks as the same system (another vehicle with its id: _one_source)
-        self.source = None
-        self.other_sources = {}  # address -> messages dropped
-        self.frames_received = 0
-        self.frames_lost = 0
-        self._last_seq = None
-        # sequence numbers jumped over and not yet seen (count_sequence)
-        self._skipped = collections.deque(maxlen=SKIPPED_KEPT)
-        self.timesync = TimeSync()
         self.on_message = None  # called with every message of the chosen autopilot
-
-    @property
-    def mav(self):
-        """The pymavlink sender (the transport's: it replaces it after a frame it choked on)."""
-        return self.transport.mav
-
-    @property
-    def conn(self):
-        return self.transport.conn
-
-    @property
-    def sent(self):
-        return self.transport.sent
-
-    @property
-    def bad_frames(self):
-        return self.transport.bad_frames
-
-    @property
-    def bad_signatures(self):
-        return self.transport.bad_signatures
 
     def close(self):
         self.transport.close()
@@ -196,28 +165,10 @@ class Link:
     def _book(self, msg):
         t = msg.get_type()
         if t.startswith("UNKNOWN"):  # a message pymavlink's dialect lacks: PX4's EVENT
-            ev = px4_events.decode(msg.get_msgbuf()) if self.autopilot == "px4" else None
-            if ev is not None and ev.system == self.target_system:
-                text = px4_events.describe(ev)
-                if text is not None:
-                    self.on_text(ev.log_levels & 0x0F, text)
+            self._px4_event(msg)
             return None
-        if self.transport.bad(msg):
+        if self.transport.bad(msg) or not self.sources.admit(msg, t):
             return None
-        src = msg.get_srcSystem()
-        if t == "HEARTBEAT" and msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1 \
-                and msg.autopilot != M.MAV_AUTOPILOT_INVALID:
-            self.systems_heard.add(src)
-            if self.target_system == 0 and self.wanted_sysid in (None, src):
-                self._choose(msg)
-        if self.target_system == 0 or src != self.target_system:
-            if self.target_system != 0:
-                self.other_system += 1
-            return None
-        if self.transport.answers_sender and not self._one_source(getattr(msg, "_from", None)):
-            return None
-        if msg.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1:
-            self._count_seq(msg.get_seq())
         if t == "HEARTBEAT":
             if msg.get_srcComponent() != M.MAV_COMP_ID_AUTOPILOT1:
                 return msg
@@ -245,63 +196,31 @@ class Link:
                                       msg.get_srcSystem(), msg.get_srcComponent())
         elif t == "STATUSTEXT":
             self.on_text(msg.severity, msg.text)
-
         elif t == "PARAM_VALUE":
-            self.params[msg.param_id] = msg
+            self.parameters.on_value(msg)
         elif t == "TIMESYNC":
             self.timesync.on_message(msg, self.mav.timesync_send)
         self.messages[t] = msg
         return msg
 
-    def _one_source(self, frm):
-        """Over udpin, whether a message of the chosen system comes from the address it was
-        first heard from (and answered there).  Another address speaking as the same system is
-        a second vehicle with its id (two SITLs on one port, two radios): MAVLink cannot tell
-        them apart, and answering whoever spoke last sent the setpoints to both in turn and
-        flew the loop on both vehicles' positions mixed.  Its messages are dropped and counted
-        (``other_sources``); a flight refuses to arm while one is heard."""
-        if frm is None or frm == self.source:
-            return True
-        if self.source is None:
-            self.source = frm
-            self.transport.answer_to(frm)  # answer the chosen autopilot only
-            return True
-        self.other_sources[frm] = self.other_sources.get(frm, 0) + 1
-        return False
+    def _px4_event(self, msg):
+        """PX4's EVENT (a message pymavlink's dialect lacks), told as text when it is one of the
+        chosen PX4's that :mod:`px4_events` knows."""
+        ev = px4_events.decode(msg.get_msgbuf()) if self.autopilot == "px4" else None
+        if ev is not None and ev.system == self.target_system:
+            text = px4_events.describe(ev)
+            if text is not None:
+                self.on_text(ev.log_levels & 0x0F, text)
 
     def sources_text(self):
         """What ``other_sources`` means, for a refusal or a warning (None when empty)."""
-        if not self.other_sources:
-            return None
-        others = ", ".join(f"{a}:{p}" for a, p in self.other_sources)
-        return (f"two vehicles speak as system {self.target_system} on {self.url}: "
-                f"{self.source[0]}:{self.source[1]} (flown) and {others} "
-                f"({sum(self.other_sources.values())} messages of the other dropped); MAVLink "
-                "cannot tell them apart, so setpoints could reach either; stop one, or give "
-                "them different system ids")
-
-    def _count_seq(self, seq):
-        """Frames lost on the way: gaps in the autopilot's MAVLink sequence numbers
-        (:func:`count_sequence`)."""
-        self.frames_received += 1
-        self._last_seq, lost = count_sequence(self._last_seq, seq, self._skipped)
-        self.frames_lost += lost
+        return self.sources.sources_text()
 
     def frame_loss(self):
-        n = self.frames_received + self.frames_lost
-        return self.frames_lost / n if n else 0.0
+        """The fraction of the autopilot's frames lost on the way."""
+        return self.sources.frame_loss()
 
-    def _choose(self, hb):
-        self.target_system = hb.get_srcSystem()
-        self.transport.speak_as(self.target_system)
-        if hb.autopilot == M.MAV_AUTOPILOT_PX4:
-            self.autopilot = "px4"
-        elif hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA:
-            self.autopilot = "ardupilot"
-        else:
-            raise LinkError(f"the autopilot of system {self.target_system} on {self.url} is "
-                            f"neither PX4 nor ArduPilot (MAV_AUTOPILOT {hb.autopilot}); "
-                            "mavadrc flies those two")
+    # --- the autopilot's heartbeat -----------------------------------------------------------
 
     def wait_heartbeat(self, timeout=15.0, idle=None):
         """Wait for the autopilot's heartbeat (``sysid``'s, or the first one heard); identifies
@@ -385,47 +304,18 @@ class Link:
         """Ask for one message now (MAV_CMD_REQUEST_MESSAGE); returns the :class:`Command`."""
         return self.command(M.MAV_CMD_REQUEST_MESSAGE, msgid)
 
-    def _param_exchange(self, name, send, timeout, idle, what):
-        """Send a parameter request until the PARAM_VALUE for ``name`` comes back (3 tries)."""
-        for _ in range(3):
-            self.params.pop(name, None)
-            send()
-            end = time.monotonic() + timeout / 3
-            while time.monotonic() < end:
-                self.recv(0.02)
-                if idle is not None:
-                    idle()
-                if name in self.params:
-                    return self._decode(self.params[name])
-        raise LinkError(f"the vehicle did not {what} parameter {name}")
-
     def param_read(self, name, timeout=3.0, idle=None):
-        return self._param_exchange(
-            name, lambda: self.mav.param_request_read_send(self.target_system, 1, name.encode(), -1),
-            timeout, idle, "answer a read of")
+        return self.parameters.read(name, timeout, idle)
 
     def param_set(self, name, value, ptype, timeout=3.0, idle=None):
-        raw = float(value)
-        if ptype == M.MAV_PARAM_TYPE_INT32 and self.autopilot == "px4":
-            raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
-        return self._param_exchange(
-            name, lambda: self.mav.param_set_send(self.target_system, 1, name.encode(), raw, ptype),
-            timeout, idle, "confirm setting")
-
-    def _decode(self, pv):
-        if pv.param_type == M.MAV_PARAM_TYPE_INT32 and self.autopilot == "px4":
-            return struct.unpack("<i", struct.pack("<f", pv.param_value))[0]
-        return pv.param_value
+        return self.parameters.set(name, value, ptype, timeout, idle)
 
     def attitude_target(self, t_boot_ms, q, thrust):
         """SET_ATTITUDE_TARGET with attitude and thrust, body rates ignored; refuses non-finite."""
-        if not (all(math.isfinite(v) for v in q) and math.isfinite(thrust)):
-            raise ValueError("refusing to send a non-finite setpoint")
-        self.mav.set_attitude_target_send(int(t_boot_ms) & 0xFFFFFFFF, self.target_system, 1, 7,
-                                          [float(v) for v in q], 0.0, 0.0, 0.0, float(thrust))
+        setpoints.attitude_target(self.mav, self.target_system, t_boot_ms, q, thrust)
 
     def named_float(self, t_boot_ms, name, value):
-        self.mav.named_value_float_send(int(t_boot_ms) & 0xFFFFFFFF, name.encode(), float(value))
+        setpoints.named_float(self.mav, t_boot_ms, name, value)
 
 
 def result_name(result):
