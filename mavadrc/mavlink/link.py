@@ -11,6 +11,8 @@ import logging
 import time
 
 from mavadrc.mavlink import px4_events, setpoints
+from mavadrc.mavlink.commands import (  # noqa: F401 (Command, result_name: importers)
+    TIMEOUT, Command, CommandSender, command_name, result_name)
 from mavadrc.mavlink.dialect import M, mavutil  # noqa: F401 (mavutil: as importers had it)
 from mavadrc.mavlink.errors import LinkError
 from mavadrc.mavlink.params import Params
@@ -19,78 +21,6 @@ from mavadrc.mavlink.timesync import TimeSync
 from mavadrc.mavlink.transport import Transport, parse_url  # noqa: F401 (parse_url: importers)
 
 log = logging.getLogger("mavadrc.mavlink.link")
-
-RESULT_NAMES = {v: k for k, v in vars(M).items() if k.startswith("MAV_RESULT_")
-                and isinstance(v, int)}
-COMMAND_NAMES = {v: k for k, v in vars(M).items() if k.startswith("MAV_CMD_")
-                 and isinstance(v, int)}
-#: a command that got no answer after all its tries (not a MAV_RESULT)
-TIMEOUT = -1
-
-#: commands whose every answer the user sees (all others are shown when not ACCEPTED)
-ANNOUNCED = (M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_LAND,
-             M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-
-
-class Command:
-    """One COMMAND_LONG until the vehicle answers it, as MAVSDK's command sender does: re-sent
-    after ``timeout`` s without an answer, ``tries`` times in all; an IN_PROGRESS answer
-    gives it longer.  ``result`` is the vehicle's MAV_RESULT, :data:`TIMEOUT`, or None while
-    it waits."""
-
-    IN_PROGRESS_S = 3.0
-
-    def __init__(self, link, cmd, params, timeout=0.5, tries=3):
-        self.link = link
-        self.cmd = cmd
-        self.params = [float(v) for v in params] + [0.0] * (7 - len(params))
-        self.timeout = timeout
-        self.tries = tries
-        self.sent = 0
-        self.result = None
-        self.ack = None
-        self.acked_wall = None  # time.monotonic() of the final answer
-        self._due = 0.0
-        self._send()
-
-    def _send(self):
-        self.sent += 1
-        self._due = time.monotonic() + self.timeout
-        self.link.mav.command_long_send(self.link.target_system, 1, self.cmd, self.sent - 1,
-                                        *self.params)
-
-    @property
-    def done(self):
-        return self.result is not None
-
-    @property
-    def accepted(self):
-        return self.result == M.MAV_RESULT_ACCEPTED
-
-    def answered(self, ack):
-        self.ack = ack
-        if ack.result == M.MAV_RESULT_IN_PROGRESS:
-            self._due = time.monotonic() + self.IN_PROGRESS_S
-            return
-        self.result = ack.result
-        self.acked_wall = time.monotonic()
-
-    def poll(self, now=None):
-        """Re-send when an answer is overdue; give up (TIMEOUT) after the last try."""
-        if self.result is not None:
-            return
-        now = time.monotonic() if now is None else now
-        if now < self._due:
-            return
-        if self.sent >= self.tries:
-            self.result = TIMEOUT
-            self.acked_wall = now
-            return
-        self._send()
-
-    def __repr__(self):
-        return f"<{command_name(self.cmd)} {result_name(self.result)}>"
-
 
 def _part(part, name, doc=None):
     """A read-only attribute of Link that is ``name`` of its part ``part``."""
@@ -103,7 +33,8 @@ class Link:
     The facade every caller uses, composed of parts each handed what it uses: the
     :class:`~mavadrc.mavlink.transport.Transport` (the wire), the
     :class:`~mavadrc.mavlink.sources.Sources` (which autopilot, and what is dropped or lost),
-    the :class:`~mavadrc.mavlink.params.Params` and the
+    the :class:`~mavadrc.mavlink.commands.CommandSender`, the
+    :class:`~mavadrc.mavlink.params.Params` and the
     :class:`~mavadrc.mavlink.timesync.TimeSync`.  Link itself routes each message received to
     the part it concerns and keeps the autopilot's heartbeat and latest messages.
     """
@@ -123,6 +54,7 @@ class Link:
     frames_received = _part("sources", "frames_received")
     frames_lost = _part("sources", "frames_lost")
     params = _part("parameters", "values", "name -> the latest PARAM_VALUE")
+    commands = _part("command_sender", "works", "key -> the latest Command of that key")
 
     def __init__(self, url, tlog=None, on_text=None, signing_key=None, sysid=None):
         self.transport = Transport(url, tlog=tlog, signing_key=signing_key)
@@ -131,12 +63,14 @@ class Link:
         self.sources = Sources(url, sysid, by_address=self.transport.answers_sender,
                                speak_as=self.transport.speak_as,
                                answer_to=self.transport.answer_to)
+        self.command_sender = CommandSender(
+            lambda *args: self.mav.command_long_send(*args), lambda: self.mav.srcSystem,
+            lambda severity, text: self.on_text(severity, text))
         self.parameters = Params(self.transport, self.sources, self.recv)
         self.timesync = TimeSync()
         self.heartbeat = None
         self.heartbeat_wall = None  # time.monotonic() when self.heartbeat came
         self.heartbeats = 0
-        self.commands = {}  # command id -> the latest Command sent
         self.messages = {}  # type -> the latest message of the chosen autopilot
         self.on_message = None  # called with every message of the chosen autopilot
 
@@ -176,18 +110,8 @@ class Link:
             self.heartbeat_wall = time.monotonic()
             self.heartbeats += 1
         elif t == "COMMAND_ACK":
-            if msg.target_system not in (0, self.mav.srcSystem) or \
-                    msg.target_component not in (0, M.MAV_COMP_ID_ONBOARD_COMPUTER):
-                return msg  # an answer to someone else's command
-            c = self.commands.get(msg.command)
-            if c is None or c.done:
-                return msg  # a repeated answer (PX4 may answer twice), or not ours
-            c.answered(msg)
-            if msg.result not in (M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_IN_PROGRESS) or \
-                    msg.command in ANNOUNCED and msg.result == M.MAV_RESULT_ACCEPTED:
-                self.on_text(M.MAV_SEVERITY_INFO if msg.result == M.MAV_RESULT_ACCEPTED
-                             else M.MAV_SEVERITY_WARNING,
-                             f"{command_name(msg.command)}: {result_name(msg.result)}")
+            if self.command_sender.on_ack(msg) is None:
+                return msg  # someone else's, a repeated answer, or from elsewhere
         elif t in ("COMMAND_LONG", "COMMAND_INT") and msg.target_component == \
                 M.MAV_COMP_ID_ONBOARD_COMPUTER and msg.target_system == self.mav.srcSystem:
             # a command for us (PX4 sends gimbal commands in its land mode): every command gets
@@ -272,12 +196,11 @@ class Link:
                                 M.MAV_STATE_ACTIVE)
 
     def command(self, cmd, *params, timeout=0.5, tries=3):
-        """Send a COMMAND_LONG; returns its :class:`Command` (poll it, or read its result as
-        the answer comes).  A newer command of the same id replaces an older one's wait: a
-        COMMAND_ACK names the command, not the request."""
-        c = Command(self, cmd, params, timeout=timeout, tries=tries)
-        self.commands[cmd] = c
-        return c
+        """Send a COMMAND_LONG to the autopilot; returns its :class:`Command` (poll it, or read
+        its result as the answer comes).  A newer command of the same key replaces an older
+        one's wait (:mod:`~mavadrc.mavlink.commands`)."""
+        return self.command_sender.send(cmd, params, self.target_system,
+                                        M.MAV_COMP_ID_AUTOPILOT1, timeout=timeout, tries=tries)
 
     def command_wait(self, cmd, *params, timeout=0.5, tries=3, idle=None):
         """Send a command and wait for its answer (re-sending as :class:`Command` does);
@@ -316,15 +239,3 @@ class Link:
 
     def named_float(self, t_boot_ms, name, value):
         setpoints.named_float(self.mav, t_boot_ms, name, value)
-
-
-def result_name(result):
-    if result == TIMEOUT:
-        return "no answer"
-    if result is None:
-        return "waiting"
-    return RESULT_NAMES.get(result, str(result)).replace("MAV_RESULT_", "")
-
-
-def command_name(cmd):
-    return COMMAND_NAMES.get(cmd, str(cmd))
