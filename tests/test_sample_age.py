@@ -327,7 +327,7 @@ def test_the_age_follows_a_vehicle_clock_that_runs_slow():
     next offset was taken, and read 6-110 ms (median 64) for samples a few ms old.  The offset
     is now a line in our time, fitted through the least queued exchanges of the last seconds:
     the ages of samples 3 ms old read 3 ms to within the clock's own 4 ms steps."""
-    from mavadrc.mavlink.link import TimeSync
+    from mavadrc.mavlink.timesync import TimeSync
 
     rng = np.random.default_rng(4)
     clock = _sim_clock(0.9865)
@@ -350,7 +350,7 @@ def test_the_clock_rate_fitted_is_kept_while_too_few_exchanges_fit_a_line():
     """A clock 5 % slow, fitted; then, on a loaded machine, one exchange whose round trip is far
     shorter than the rest leaves fewer than MIN_FIT near it: the newest offset is taken, at the
     rate fitted, not at ours (in CI a real-time flight reported a skew of 0 so)."""
-    from mavadrc.mavlink.link import TimeSync
+    from mavadrc.mavlink.timesync import TimeSync
 
     rng = np.random.default_rng(6)
     clock = _sim_clock(0.95, quantum_s=0.001)
@@ -370,7 +370,7 @@ def test_the_age_recovers_at_once_from_a_vehicle_clock_that_jumps():
     """A vehicle that reboots (its clock back near 0) or resets its time: the exchange that
     lands far off the line starts it afresh, and the ages are right again from the exchange
     after it, though the exchanges before had shorter round trips."""
-    from mavadrc.mavlink.link import TimeSync
+    from mavadrc.mavlink.timesync import TimeSync
 
     rng = np.random.default_rng(5)
     ts = TimeSync()

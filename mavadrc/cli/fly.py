@@ -7,7 +7,7 @@ from mavadrc.fast.identify import flight_design_lag
 from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word
 from mavadrc.flight.flight import print_table
 from mavadrc.flight.fly import Interrupted, fly, interrupt_status, interrupted
-from mavadrc.mavlink.link import LinkError
+from mavadrc.mavlink.errors import LinkError
 from mavadrc.mission.config import load_mission
 from sim.yamlio import ConfigError
 

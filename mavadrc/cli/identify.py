@@ -16,7 +16,7 @@ def main(args):
     from mavadrc.flight.fly import EXIT_INTERRUPTED, Interrupted, UsageError, fly
     from mavadrc.cli.fly import check_bundled, read_key
     from mavadrc.errors import FlightError
-    from mavadrc.mavlink.link import LinkError
+    from mavadrc.mavlink.errors import LinkError
     from mavadrc.mission.config import load_mission
 
     def fail(text, code):

@@ -12,7 +12,7 @@ import math
 import time
 
 from mavadrc.control.rotations import level_quat
-from mavadrc.mavlink.link import M
+from mavadrc.mavlink.dialect import M
 from mavadrc.flight.supervisor import GIVE_UP, HOLD_THEN_LAND, LAND, WATCH
 
 #: a failsafe mode command is re-sent this often (s) until the heartbeat shows the mode

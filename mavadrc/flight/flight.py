@@ -51,7 +51,8 @@ from mavadrc.flight.ground import CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_
 from mavadrc.mission.takeoff import LIFTOFF_HEIGHT, TAKEOFF_RAMP_PER_S, TAKEOFF_WAIT_M, TAKEOFF_WAIT_MAX_S, lifted_off
 from mavadrc.control.learn import DragLearner
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import LinkError, M
+from mavadrc.mavlink.dialect import M
+from mavadrc.mavlink.errors import LinkError
 from mavadrc.flight.preflight import Preflight
 from mavadrc.control import kernels as K
 from mavadrc.control.position import (IN_BUF, IN_HEAD, IN_L1, IN_ND, IN_NLAG, IN_STATE, input_model_rest)

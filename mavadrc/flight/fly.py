@@ -23,7 +23,9 @@ from pathlib import Path
 from mavadrc.flight.console import (EXIT_INTERRUPTED, FlightSignals, guarded, interrupt_exit_status,
                       interrupt_word)
 from mavadrc.flight.flight import Flight
-from mavadrc.mavlink.link import Link, LinkError, parse_url
+from mavadrc.mavlink.errors import LinkError
+from mavadrc.mavlink.link import Link
+from mavadrc.mavlink.transport import parse_url
 from mavadrc.flight.record import FlightRecord
 from mavadrc.errors import UsageError
 

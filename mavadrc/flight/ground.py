@@ -16,7 +16,8 @@ import numpy as np
 from mavadrc.control.geometry import GRAVITY
 from mavadrc.control.rotations import level_quat, wrap_pi
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import TIMEOUT, M, result_name
+from mavadrc.mavlink.commands import TIMEOUT, result_name
+from mavadrc.mavlink.dialect import M
 from mavadrc.mission.identification import HANDOVER_S, TAKEOFF_HANDOVER_S, leg_speed_of, windows_in
 from mavadrc.design.margin import margin_text, prediction_text
 from mavadrc.mission.config import FINAL_SPEED

@@ -12,7 +12,9 @@ import time
 from mavadrc.design.fitworker import FitWorker
 from mavadrc.design.identify import load_fitting
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import TIMEOUT, LinkError, M, result_name
+from mavadrc.mavlink.commands import TIMEOUT, result_name
+from mavadrc.mavlink.dialect import M
+from mavadrc.mavlink.errors import LinkError
 from mavadrc.flight.rangefinder import RANGE_HZ
 from mavadrc.mavlink.sequence import sequence_for
 from mavadrc.flight.truth import TRUTH_HZ, TruthTrack
