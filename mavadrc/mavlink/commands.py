@@ -138,7 +138,7 @@ class CommandSender:
         self._announce = announce
         # command id -> {key: the latest Command of that key}, each in the order first sent
         self._work = {}
-        self.wrong_source = 0  # ACKs of a command waiting, from a system/component it was not sent to
+        self.wrong_source = 0  # ACKs of a waiting command from where it was not sent
         self.unmatched = 0  # ACKs that found no command of theirs waiting
 
     def send(self, cmd, params, target_system, target_component=M.MAV_COMP_ID_AUTOPILOT1,

@@ -11,16 +11,23 @@ import logging
 import time
 
 from mavadrc.mavlink import px4_events, setpoints
-from mavadrc.mavlink.commands import (  # noqa: F401 (Command, result_name: importers)
-    TIMEOUT, Command, CommandSender, command_name, result_name)
-from mavadrc.mavlink.dialect import M, mavutil  # noqa: F401 (mavutil: as importers had it)
+from mavadrc.mavlink.commands import CommandSender
+from mavadrc.mavlink.dialect import M
 from mavadrc.mavlink.errors import LinkError
 from mavadrc.mavlink.params import Params
-from mavadrc.mavlink.sources import SKIPPED_KEPT, Sources, count_sequence  # noqa: F401
+from mavadrc.mavlink.sources import Sources
 from mavadrc.mavlink.timesync import TimeSync
-from mavadrc.mavlink.transport import Transport, parse_url  # noqa: F401 (parse_url: importers)
+from mavadrc.mavlink.transport import Transport
+
+# The names this module defined before its parts had modules of their own, importable from here
+# still for code written against it (the package imports them from their homes).
+from mavadrc.mavlink.commands import TIMEOUT, Command, command_name, result_name  # noqa: E402,F401
+from mavadrc.mavlink.dialect import mavutil  # noqa: E402,F401
+from mavadrc.mavlink.sources import SKIPPED_KEPT, count_sequence  # noqa: E402,F401
+from mavadrc.mavlink.transport import UdpEndpoint, parse_url  # noqa: E402,F401
 
 log = logging.getLogger("mavadrc.mavlink.link")
+
 
 def _part(part, name, doc=None):
     """A read-only attribute of Link that is ``name`` of its part ``part``."""
