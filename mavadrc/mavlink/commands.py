@@ -136,7 +136,7 @@ class CommandSender:
         self._send = send
         self._own_system = own_system
         self._announce = announce
-        # command id -> {key: the latest Command of that key}, each in the order first sent
+        # command id (in the order first sent) -> {key: the latest Command of that key}
         self._work = {}
         self.wrong_source = 0  # ACKs of a waiting command from where it was not sent
         self.unmatched = 0  # ACKs that found no command of theirs waiting
