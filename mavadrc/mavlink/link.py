@@ -48,6 +48,7 @@ class Link:
 
     mav = _part("transport", "mav", "the pymavlink sender (replaced after a frame it choked on)")
     conn = _part("transport", "conn")
+    tlog = _part("transport", "tlog")
     sent = _part("transport", "sent")
     bad_frames = _part("transport", "bad_frames")
     bad_signatures = _part("transport", "bad_signatures")
