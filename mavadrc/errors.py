@@ -1,5 +1,5 @@
-"""The errors the commands tell apart: a user's mistake (exit 2, nothing flown or run) and a
-flight that could not start or go on (exit 1)."""
+"""The errors the commands tell apart: a user's mistake (exit 2, nothing flown or run), a
+flight that could not start or go on and a link that failed it (exit 1)."""
 
 
 class UsageError(ValueError):
@@ -8,3 +8,7 @@ class UsageError(ValueError):
 
 class FlightError(RuntimeError):
     """The flight could not start or go on; the message says why, in the vehicle's words."""
+
+
+class LinkError(RuntimeError):
+    """The link or the vehicle did not do what the flight needs; the message says what."""

@@ -17,7 +17,7 @@ from mavadrc.flight.embedded import free_udp_port
 from mavadrc.study.experiment import experiment_from_text
 from mavadrc.flight.fly import fly
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import LinkError
+from mavadrc.errors import LinkError
 from mavadrc.mission.config import load_mission
 from sim.yamlio import ConfigError
 

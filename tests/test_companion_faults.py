@@ -24,7 +24,8 @@ from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
 from mavadrc.flight.flight import Flight
 from mavadrc.flight.fly import fly
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import Link, LinkError
+from mavadrc.errors import LinkError
+from mavadrc.mavlink.link import Link
 from mavadrc.mission.config import load_mission
 from mavadrc.flight.record import FlightRecord, read_table
 

@@ -21,7 +21,9 @@ from mavadrc.flight.embedded import free_udp_port  # noqa: E402
 from mavadrc.flight.flight import Flight, FlightError  # noqa: E402
 from mavadrc.fast.identify import flight_design_lag  # noqa: E402
 from mavadrc.flight.fly import fly  # noqa: E402
-from mavadrc.mavlink.link import Link, LinkError, parse_url  # noqa: E402
+from mavadrc.errors import LinkError  # noqa: E402
+from mavadrc.mavlink.link import Link  # noqa: E402
+from mavadrc.mavlink.transport import parse_url  # noqa: E402
 from mavadrc.mission.config import load_mission  # noqa: E402
 from mavadrc.mavlink.sequence import PX4_OFFBOARD  # noqa: E402
 from mavadrc.flight.record import FlightRecord, read_table  # noqa: E402

@@ -202,7 +202,7 @@ def test_a_reordered_frame_is_late_not_lost():
     import collections
     import random
 
-    from mavadrc.mavlink.link import SKIPPED_KEPT, count_sequence
+    from mavadrc.mavlink.sources import SKIPPED_KEPT, count_sequence
 
     def count(seqs):
         last, lost, skipped = None, 0, collections.deque(maxlen=SKIPPED_KEPT)

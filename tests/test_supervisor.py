@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from mavadrc.mavlink import px4_events as E
-from mavadrc.mavlink.link import TIMEOUT, Command, TimeSync, parse_url, LinkError
+from mavadrc.mavlink.commands import TIMEOUT, Command
+from mavadrc.errors import LinkError
+from mavadrc.mavlink.timesync import TimeSync
+from mavadrc.mavlink.transport import parse_url
 from mavadrc.mission.config import Safety
 from mavadrc.mavlink.samples import Sample, SampleGate
 from mavadrc.flight.supervisor import (GIVE_UP, HOLD_THEN_LAND, LAND, RULES, WATCH, Supervisor)
@@ -183,31 +186,24 @@ class FakeMav:
         self.sent.append(args)
 
 
-class FakeLink:
-    target_system = 1
-
-    def __init__(self):
-        self.mav = FakeMav()
-
-
 class Ack:
     def __init__(self, result):
         self.result = result
 
 
 def test_a_command_is_sent_again_until_answered_then_gives_up():
-    link = FakeLink()
-    c = Command(link, 400, [1.0], timeout=0.05, tries=3)
+    mav = FakeMav()
+    c = Command(mav.command_long_send, 400, [1.0], target_system=1, timeout=0.05, tries=3)
     for _ in range(3):
         time.sleep(0.06)
         c.poll()
-    assert len(link.mav.sent) == 3 and c.result == TIMEOUT
-    assert [a[3] for a in link.mav.sent] == [0, 1, 2]  # confirmation counts the re-sends
+    assert len(mav.sent) == 3 and c.result == TIMEOUT
+    assert [a[3] for a in mav.sent] == [0, 1, 2]  # confirmation counts the re-sends
 
 
 def test_in_progress_gives_a_command_longer():
-    link = FakeLink()
-    c = Command(link, 400, [1.0], timeout=0.05, tries=1)
+    mav = FakeMav()
+    c = Command(mav.command_long_send, 400, [1.0], target_system=1, timeout=0.05, tries=1)
     c.answered(Ack(5))  # MAV_RESULT_IN_PROGRESS
     time.sleep(0.06)
     c.poll()

@@ -3,12 +3,11 @@ import contextlib
 import sys
 import time
 
-from mavadrc.errors import FlightError, UsageError
+from mavadrc.errors import FlightError, LinkError, UsageError
 from mavadrc.fast.identify import flight_design_lag
 from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word
 from mavadrc.flight.fly import Interrupted, fly, interrupt_status, interrupted
 from mavadrc.flight.summary import print_table
-from mavadrc.mavlink.link import LinkError
 from mavadrc.mission.config import load_mission
 from sim.yamlio import ConfigError
 

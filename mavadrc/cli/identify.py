@@ -17,9 +17,8 @@ def main(args):
     from pathlib import Path
 
     from mavadrc.cli.fly import check_bundled, read_key
-    from mavadrc.errors import FlightError
+    from mavadrc.errors import FlightError, LinkError
     from mavadrc.flight.fly import EXIT_INTERRUPTED, Interrupted, UsageError, fly
-    from mavadrc.mavlink.link import LinkError
     from mavadrc.mission.config import load_mission
     from sim.yamlio import ConfigError
 

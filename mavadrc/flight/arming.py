@@ -3,7 +3,8 @@ lost answer is settled by the heartbeat); a refusal ends the flight with the veh
 
 from mavadrc.errors import FlightError
 from mavadrc.flight.state import vehicle_mode
-from mavadrc.mavlink.link import TIMEOUT, M, result_name
+from mavadrc.mavlink.commands import TIMEOUT, result_name
+from mavadrc.mavlink.dialect import M
 
 
 class Arming:

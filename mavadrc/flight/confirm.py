@@ -3,7 +3,8 @@ answer is settled by the heartbeat), and a lost command sent again."""
 
 import time
 
-from mavadrc.mavlink.link import TIMEOUT, M
+from mavadrc.mavlink.commands import TIMEOUT
+from mavadrc.mavlink.dialect import M
 
 
 class Confirm:

@@ -13,7 +13,7 @@ import time
 from mavadrc.control.rotations import level_quat
 from mavadrc.flight.state import vehicle_mode
 from mavadrc.flight.supervisor import GIVE_UP, HOLD_THEN_LAND, LAND, WATCH
-from mavadrc.mavlink.link import M
+from mavadrc.mavlink.dialect import M
 
 #: a failsafe mode command is re-sent this often (s) until the heartbeat shows the mode
 RESEND_S = 1.0

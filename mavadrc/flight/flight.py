@@ -44,7 +44,7 @@ import traceback
 
 from mavadrc.control.rotations import level_quat
 from mavadrc.design.identify import needs_identification
-from mavadrc.errors import FlightError
+from mavadrc.errors import FlightError, LinkError
 from mavadrc.flight.arming import Arming
 from mavadrc.flight.choice import ControllerChoice
 from mavadrc.flight.confirm import Confirm
@@ -63,7 +63,6 @@ from mavadrc.flight.steering import Steering
 from mavadrc.flight.summary import Summary
 from mavadrc.flight.supervisor import GIVE_UP, Supervisor
 from mavadrc.flight.takeoff import Takeoff
-from mavadrc.mavlink.link import LinkError
 from mavadrc.mavlink.samples import SampleGate
 
 #: lockstep: the least telemetry timeout (s); the vehicle waits on us, so a machine busy

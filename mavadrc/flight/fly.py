@@ -19,7 +19,7 @@ import signal
 import sys
 from pathlib import Path
 
-from mavadrc.errors import UsageError
+from mavadrc.errors import LinkError, UsageError
 from mavadrc.flight.console import (
     EXIT_INTERRUPTED,
     FlightSignals,
@@ -29,7 +29,8 @@ from mavadrc.flight.console import (
 )
 from mavadrc.flight.flight import Flight
 from mavadrc.flight.record import FlightRecord
-from mavadrc.mavlink.link import Link, LinkError, parse_url
+from mavadrc.mavlink.link import Link
+from mavadrc.mavlink.transport import parse_url
 
 
 class Interrupted(Exception):

@@ -10,7 +10,8 @@ import numpy as np
 
 from mavadrc.control.geometry import GRAVITY
 from mavadrc.control.rotations import level_quat
-from mavadrc.mavlink.link import TIMEOUT, M, result_name
+from mavadrc.mavlink.commands import TIMEOUT, result_name
+from mavadrc.mavlink.dialect import M
 from mavadrc.mission.config import FINAL_SPEED
 from mavadrc.mission.trajectories import Reference
 

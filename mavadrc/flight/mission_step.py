@@ -11,7 +11,7 @@ from mavadrc.control.geometry import GRAVITY
 from mavadrc.flight.landing import CARRIED_SHARE, CARRIED_THRUST_MARGIN, SETTLED_S
 from mavadrc.flight.state import Held
 from mavadrc.flight.supervisor import LAND
-from mavadrc.mavlink.link import M
+from mavadrc.mavlink.dialect import M
 from mavadrc.mission.takeoff import YAW_RATE
 from mavadrc.mission.trajectories import Reference
 

@@ -9,11 +9,12 @@ import time
 
 from mavadrc.design.fitworker import FitWorker
 from mavadrc.design.identify import load_fitting
-from mavadrc.errors import FlightError
+from mavadrc.errors import FlightError, LinkError
 from mavadrc.flight.rangefinder import RANGE_HZ
 from mavadrc.flight.state import vehicle_mode
 from mavadrc.flight.truth import TRUTH_HZ, TruthTrack
-from mavadrc.mavlink.link import TIMEOUT, LinkError, M, result_name
+from mavadrc.mavlink.commands import TIMEOUT, result_name
+from mavadrc.mavlink.dialect import M
 from mavadrc.mavlink.sequence import sequence_for
 
 #: vehicle time (s) over which the achieved sample rate is measured before arming

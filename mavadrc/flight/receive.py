@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from mavadrc.flight.rangefinder import range_height
-from mavadrc.mavlink.link import M
+from mavadrc.mavlink.dialect import M
 
 TRUE_DIST = "TRUE_DIST"
 #: in the final descent or after touchdown, a tilt past 45 deg (its cosine) is a vehicle on its

@@ -7,7 +7,7 @@ in the companion branches on the autopilot's name.
 """
 
 from mavadrc.errors import FlightError
-from mavadrc.mavlink.link import M, mavutil  # mavutil as link imports it (MAVLink 2)
+from mavadrc.mavlink.dialect import M, mavutil
 
 
 def _px4_names():
@@ -84,7 +84,7 @@ class Sequence:
     truth_message = None
 
     def request_control(self, link):
-        """Ask for the mode that takes our setpoints; returns the :class:`~mavadrc.mavlink.link.Command`."""
+        """Ask for the mode that takes our setpoints; returns the :class:`~mavadrc.mavlink.commands.Command`."""
         raise NotImplementedError
 
     def request_hold(self, link):
