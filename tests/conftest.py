@@ -7,6 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+# One BLAS and OpenMP thread per process: the workers (one more than the cores) and the
+# vehicles and fits they start already fill the cores, and OpenBLAS's threads spin-wait after
+# each call they share.  Measured on 2 cores (test_physics, test_robustness, test_identify,
+# -n 2): 44 CPU-s against 50-55.  Set before numpy is first imported (here, in the controller,
+# whose environment the workers and their children inherit).  numba's own threads
+# (NUMBA_NUM_THREADS) are left at the cores: its parallel kernels stay tested on two threads.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 # MAVLink 2 before any test module imports pymavlink (which picks its dialect once, on import),
 # whatever order a file's imports come in
 os.environ.setdefault("MAVLINK20", "1")
