@@ -97,7 +97,13 @@ def test_a_reordering_link_is_not_reported_as_a_losing_one(tmp_path):
     assert 0.05 < lk["out_of_order_fraction"] < 0.2
     assert lk["out_of_order_fraction"] <= lk["loss_fraction"] < lk["out_of_order_fraction"] + 0.05
     assert lk["dropped_late"] >= 0.9 * lk["out_of_order_fraction"] * lk["samples_expected"]
-    said = [w for w in summary["warnings"] if "samples" in w]
+    # Every warning on the samples' loss blames the order.  Not among them: the one for samples
+    # answered late (``samples_late`` of them), which blames no link but a loop that stalled.
+    # The companion, the proxy and the vehicle share this process, and a loaded machine stalls
+    # it now and then: a full run beside other work once warned of samples answered more than
+    # 0.1 s late.  With none late nothing is set aside.
+    late = f"{lk['samples_late']} samples were answered more than"
+    said = [w for w in summary["warnings"] if "samples" in w and not w.startswith(late)]
     assert said and all("out of order" in w for w in said), summary["warnings"]
     assert "out of order" in text
     if "reach us in order" in summary["sources"]["rate"]:  # the rate flown was said
