@@ -1,9 +1,20 @@
 """Test-session setup shared by every test file."""
 
+import hashlib
 import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
+
+# One BLAS and OpenMP thread per process: the workers (one more than the cores) and the
+# vehicles and fits they start already fill the cores, and OpenBLAS's threads spin-wait after
+# each call they share.  Measured on 2 cores (test_physics, test_robustness, test_identify,
+# -n 2): 44 CPU-s against 50-55.  Set before numpy is first imported (here, in the controller,
+# whose environment the workers and their children inherit).  numba's own threads
+# (NUMBA_NUM_THREADS) are left at the cores: its parallel kernels stay tested on two threads.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 # MAVLink 2 before any test module imports pymavlink (which picks its dialect once, on import),
 # whatever order a file's imports come in
@@ -53,15 +64,65 @@ WARM_UPS = (
     "load_fitting()\n",
 )
 
+#: where the stamp of the last warm-up that succeeded is kept (pytest's cache, .pytest_cache/)
+WARM_UP_KEY = "mavadrc/warm-up"
+
+
+def warm_up_stamp(root):
+    """What numba's cache of the warmed-up kernels depends on: the interpreter, numba's version
+    and settings, :data:`WARM_UPS`, and every source file that mentions ``jit`` (the kernels' and
+    the decorator's) by its modification time and size, as numba itself judges a cache stale.
+    A few milliseconds: no module is imported."""
+    from importlib.metadata import version
+
+    h = hashlib.sha256()
+    h.update(repr((sys.executable, sys.version, version("numba"), WARM_UPS,
+                   sorted((k, v) for k, v in os.environ.items() if k.startswith("NUMBA_"))))
+             .encode())
+    for pkg in ("mavadrc", "sim"):
+        for path in sorted((root / pkg).rglob("*.py")):
+            if b"jit" in path.read_bytes():
+                st = path.stat()
+                h.update(f"{path.relative_to(root)} {st.st_mtime_ns} {st.st_size}\n".encode())
+    return h.hexdigest()
+
+
+def numba_indexes(root):
+    """The index files of numba's on-disk cache (beside the sources, or under
+    ``NUMBA_CACHE_DIR``), relative to where they are."""
+    base = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else root
+    dirs = [base] if base != root else [root / "mavadrc", root / "sim"]
+    return base, sorted(str(p.relative_to(base)) for d in dirs for p in d.rglob("*.nbi"))
+
+
+def warm_up_needed(config):
+    """Whether :data:`WARM_UPS` must run: no warm-up succeeded with the kernels' sources as they
+    are now, or a cache file it left has gone since.  Without pytest's cache (``-p
+    no:cacheprovider``) it always runs."""
+    cache = getattr(config, "cache", None)
+    if cache is None:
+        return True
+    last = cache.get(WARM_UP_KEY, None)
+    if not isinstance(last, dict) or last.get("stamp") != warm_up_stamp(config.rootpath):
+        return True
+    base, _ = numba_indexes(config.rootpath)
+    return not last.get("indexes") or \
+        not all((base / rel).exists() for rel in last["indexes"])
+
 
 def pytest_configure(config):
-    """In the controller of a run with workers: :data:`WARM_UPS`.  One that fails costs only
-    the time: the workers compile what it did not, as they would have anyway."""
+    """In the controller of a run with workers: :data:`WARM_UPS`, unless numba's cache is known
+    fresh for them (:func:`warm_up_needed`; then they would only load it, ~5 s).  One that fails
+    costs only the time: the workers compile what it did not, as they would have anyway."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", 0):
         return
+    if not warm_up_needed(config):
+        return
+    stamp = warm_up_stamp(config.rootpath)
     procs = [subprocess.Popen([sys.executable, "-c", code], cwd=config.rootpath,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
              for code in WARM_UPS]
+    failed = False
     for p in procs:
         try:
             _, err = p.communicate(timeout=600)
@@ -69,5 +130,11 @@ def pytest_configure(config):
             p.kill()
             err = "did not finish in 600 s"
         if p.returncode:
+            failed = True
             sys.stderr.write(f"conftest: compiling the kernels ahead failed; the workers will "
                              f"compile them ({err.strip().splitlines()[-1:]})\n")
+    # stamped only if the sources did not change while it compiled
+    if not failed and getattr(config, "cache", None) is not None \
+            and warm_up_stamp(config.rootpath) == stamp:
+        config.cache.set(WARM_UP_KEY, {"stamp": stamp,
+                                       "indexes": numba_indexes(config.rootpath)[1]})

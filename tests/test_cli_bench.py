@@ -49,6 +49,7 @@ def test_bench_says_a_peer_is_not_installed_and_how_to_install_it(monkeypatch):
     assert "nan" not in out.getvalue()
 
 
+@pytest.mark.realtime
 def test_sitl_figures_measure_a_running_vehicle():
     fig = sitl_figures(realtime_seconds=2.0, lockstep_seconds=1.0)
     assert set(fig) == {"sitl_realtime_clock_error_pct", "sitl_realtime_cpu_pct_of_core",

@@ -35,6 +35,7 @@ M = mavutil.mavlink
 # --- samples lost, late, broken ------------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_five_percent_telemetry_loss_keeps_the_error_within_twice_the_clean_flight(tmp_path):
     mission = short_mission(tmp_path, hover=1)
     srv, link = lossy_vehicle(link_seed=1)
@@ -57,6 +58,7 @@ def test_five_percent_telemetry_loss_keeps_the_error_within_twice_the_clean_flig
     assert clean["missed_periods"] < 0.005 * clean["samples"]
 
 
+@pytest.mark.realtime
 def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
     srv, link = lossy_vehicle(link_seed=3)
     try:
@@ -78,6 +80,7 @@ def test_twenty_percent_loss_never_reports_a_good_flight_that_was_not(tmp_path):
     assert "lost" in text  # the console said so
 
 
+@pytest.mark.realtime
 def test_a_reordering_link_is_not_reported_as_a_losing_one(tmp_path):
     """Through 20 ms of uniform jitter at 100 Hz (no loss) about one sample in eight comes
     behind a newer one and is dropped: the summary counts them among the samples missed and
@@ -95,7 +98,13 @@ def test_a_reordering_link_is_not_reported_as_a_losing_one(tmp_path):
     assert 0.05 < lk["out_of_order_fraction"] < 0.2
     assert lk["out_of_order_fraction"] <= lk["loss_fraction"] < lk["out_of_order_fraction"] + 0.05
     assert lk["dropped_late"] >= 0.9 * lk["out_of_order_fraction"] * lk["samples_expected"]
-    said = [w for w in summary["warnings"] if "samples" in w]
+    # Every warning on the samples' loss blames the order.  Not among them: the one for samples
+    # answered late (``samples_late`` of them), which blames no link but a loop that stalled.
+    # The companion, the proxy and the vehicle share this process, and a loaded machine stalls
+    # it now and then: a full run beside other work once warned of samples answered more than
+    # 0.1 s late.  With none late nothing is set aside.
+    late = f"{lk['samples_late']} samples were answered more than"
+    said = [w for w in summary["warnings"] if "samples" in w and not w.startswith(late)]
     assert said and all("out of order" in w for w in said), summary["warnings"]
     assert "out of order" in text
     if "reach us in order" in summary["sources"]["rate"]:  # the rate flown was said
@@ -122,6 +131,7 @@ def test_a_changing_link_warning_is_kept_once_in_the_summary():
     assert f.warnings.count("the delay margin is short") == 1
 
 
+@pytest.mark.realtime
 def test_one_nan_sample_changes_nothing_visible(tmp_path):
     srv, link = lossy_vehicle(link_seed=4)
     try:
@@ -136,6 +146,7 @@ def test_one_nan_sample_changes_nothing_visible(tmp_path):
     assert np.isfinite(table["pos_x"]).all() and np.isfinite(table["thrust"]).all()
 
 
+@pytest.mark.realtime
 def test_a_short_gap_is_bridged_without_a_jump(tmp_path):
     """0.3 s without samples in the hover: the observers predict with the input they applied
     and resume correcting; before the fix z3_x jumped from -1.69 to +194 m/s^2."""
@@ -155,6 +166,7 @@ def test_a_short_gap_is_bridged_without_a_jump(tmp_path):
         assert np.abs(tab[f"acc_cmd_{a}"][gap:gap + 20]).max() < 5.0
 
 
+@pytest.mark.realtime
 def test_a_stream_at_half_the_rate_is_flown_at_that_rate_and_said(tmp_path):
     """The autopilot streams LOCAL_POSITION_NED at 50 Hz where 100 Hz was asked (here the
     proxy rewrites the request): the flight measures it, says so and steps at 50 Hz."""
@@ -177,6 +189,7 @@ def test_a_stream_at_half_the_rate_is_flown_at_that_rate_and_said(tmp_path):
     assert summary["missed_periods"] <= 2
 
 
+@pytest.mark.realtime
 def test_lost_stream_requests_are_sent_again(tmp_path):
     srv, link = lossy_vehicle(link_seed=7)
     rule = link.drop_command(M.MAV_CMD_SET_MESSAGE_INTERVAL, n=2)
@@ -189,6 +202,7 @@ def test_lost_stream_requests_are_sent_again(tmp_path):
     assert summary["rate_hz"] == 100.0 and summary["landed"]
 
 
+@pytest.mark.realtime
 def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
     """Every SET_MESSAGE_INTERVAL lost: the vehicle keeps its 30 Hz default; never a 100 Hz
     law on 30 Hz samples in silence.  The first stream is asked STREAM_TRIES times; once it
@@ -214,6 +228,7 @@ def test_stream_requests_all_lost_fly_at_the_rate_the_vehicle_sends(tmp_path):
 # --- the link cut --------------------------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_a_two_second_blackout_ends_on_the_ground_disarmed(tmp_path):
     srv, link = lossy_vehicle(link_seed=9)
     on_ground = {}
@@ -276,6 +291,7 @@ def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypa
 # --- commands and their answers ------------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_a_lost_arm_answer_is_settled_by_the_heartbeat(tmp_path):
     srv, link = lossy_vehicle(link_seed=10)
     rule = link.drop_ack(M.MAV_CMD_COMPONENT_ARM_DISARM, n=3)  # every try's answer
@@ -288,6 +304,7 @@ def test_a_lost_arm_answer_is_settled_by_the_heartbeat(tmp_path):
     assert summary["landed"] and summary["aborted"] == []
 
 
+@pytest.mark.realtime
 def test_a_mode_change_and_an_arm_command_lost_on_every_try_are_sent_again(tmp_path):
     """On a link that loses a fifth of the datagrams each way, all three tries of a command are
     lost once in 125 flights (it ended a CI run: "arming was not confirmed within 6 s").  With
@@ -307,6 +324,7 @@ def test_a_mode_change_and_an_arm_command_lost_on_every_try_are_sent_again(tmp_p
     assert summary["landed"] and summary["aborted"] == []
 
 
+@pytest.mark.realtime
 def test_an_error_in_the_companion_lands_the_vehicle(tmp_path, monkeypatch):
     calls = {"n": 0}
     from mavadrc.flight.mission_step import MissionStep
@@ -330,6 +348,7 @@ def test_an_error_in_the_companion_lands_the_vehicle(tmp_path, monkeypatch):
     assert "Traceback" not in text
 
 
+@pytest.mark.realtime
 def test_timeout_covers_the_whole_flight_and_the_landing(tmp_path):
     srv, link = lossy_vehicle(link_seed=12)
     t0 = time.monotonic()
@@ -357,6 +376,7 @@ def sent_by_companion(folder):
             out.append((m.get_type(), getattr(m, "command", None)))
 
 
+@pytest.mark.realtime
 def test_a_second_companion_is_refused_and_the_first_flies_on(tmp_path):
     srv, link = lossy_vehicle(link_seed=13)
     mission = short_mission(tmp_path, hover=6)
@@ -390,6 +410,7 @@ def test_a_second_companion_is_refused_and_the_first_flies_on(tmp_path):
     assert result["summary"]["max_error_m"] < 0.1
 
 
+@pytest.mark.realtime
 def test_takeover_flies_a_vehicle_in_the_air_from_where_it_is(tmp_path):
     srv, port = start_vehicle(params=dict(FAST_PX4))
     c = Client(port)
@@ -437,6 +458,7 @@ def test_signed_flight_against_the_signed_bundled_vehicle(tmp_path):
     assert m is not None and m.get_msgbuf()[2] & M.MAVLINK_IFLAG_SIGNED  # the frame is signed
 
 
+@pytest.mark.realtime
 def test_a_wrong_signing_key_hears_nothing(tmp_path):
     srv, port = start_vehicle(signing_key=b"\x01" * 32)
     rec = FlightRecord(tmp_path / "r")
@@ -470,6 +492,7 @@ def test_summary_is_strict_json_even_when_nothing_flew(tmp_path):
 # --- two vehicles with one system id ----------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_two_vehicles_with_one_system_id_on_one_port_are_refused(tmp_path):
     """Two bundled vehicles, both system 1, sending to the companion's one port (two SITLs
     left running, as happened beside PX4 SIH): MAVLink cannot tell them apart, and the flight
@@ -495,6 +518,7 @@ def test_two_vehicles_with_one_system_id_on_one_port_are_refused(tmp_path):
     assert "not flying" in text
 
 
+@pytest.mark.realtime
 def test_one_vehicle_is_followed_from_the_address_it_was_heard_from(tmp_path):
     """The link's rule by itself: the first address speaking as the chosen system is read and
     answered; another address with the same id is dropped, counted and named."""
@@ -522,6 +546,7 @@ def test_one_vehicle_is_followed_from_the_address_it_was_heard_from(tmp_path):
         a.stop()
 
 
+@pytest.mark.realtime
 def test_a_second_vehicle_heard_in_flight_is_dropped_and_the_flight_goes_on(tmp_path):
     """A second vehicle with the flown one's system id starts sending to the port mid-flight:
     its messages are dropped (its position never reaches the loop), the flight warns once and

@@ -141,6 +141,7 @@ def _moving_on_the_ground(srv, rate, drift=0.0):
     return hook, state
 
 
+@pytest.mark.realtime
 def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     """PX4 SIH, once: sitting on the ground its estimate read a 0.25-0.5 m/s descent, and its
     land detector, fooled alike, said ON_GROUND only after the flight's 8 s bound ("touchdown
@@ -161,6 +162,7 @@ def test_an_estimate_sinking_on_the_ground_still_sees_touchdown(tmp_path):
     assert summary["touchdown_speed_mps"] < 0.5
 
 
+@pytest.mark.realtime
 def test_a_touchdown_seen_seconds_after_the_contact_is_judged_at_the_contact(tmp_path):
     """PX4 SIH: the height estimate climbed at up to 0.2 m/s on the ground after the contact, and
     touchdown was seen 1-4 s later; judged on the 2 s before that, the touchdown speed read 0.00
@@ -196,6 +198,7 @@ def test_the_landing_tilt_falls_with_the_thrust_to_level_at_its_floor():
     assert landing_tilt(cap, 0.3, 0.05, 0.05) == cap  # a hover at the floor: no scale to use
 
 
+@pytest.mark.realtime
 def test_the_final_descent_does_not_tip_the_vehicle_as_the_ground_takes_its_weight(tmp_path):
     """PX4 SIH, once: in the final descent the thrust fell to its floor while the ground took
     the weight, the horizontal loop went on asking for its acceleration, and the attitude that
@@ -220,6 +223,7 @@ def test_the_final_descent_does_not_tip_the_vehicle_as_the_ground_takes_its_weig
     assert tilt[low].max() < 5.0
 
 
+@pytest.mark.realtime
 def test_a_vehicle_that_tips_over_after_touchdown_is_not_reported_landed(tmp_path):
     """The autopilot's attitude reading 80 deg of roll after touchdown (PX4 SIH's did, the
     vehicle on its side): the summary says so and does not say "landed"."""
@@ -247,6 +251,7 @@ def test_a_vehicle_that_tips_over_after_touchdown_is_not_reported_landed(tmp_pat
     assert "warning: the vehicle tipped over at touchdown" in text
 
 
+@pytest.mark.realtime
 def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_path):
     """PX4 SIH, 3 of about 50 flights: on the ground, its estimate read the vehicle climbing
     0.35-0.4 m/s (0.6-1.2 m up), its land detector said IN_AIR and refused the disarm ("Disarming
@@ -289,6 +294,7 @@ def test_a_disarm_refused_on_the_ground_hands_the_landing_to_px4s_land_mode(tmp_
     assert text.count("  vehicle: Disarming denied: not landed") < refusals / 2
 
 
+@pytest.mark.realtime
 def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, monkeypatch):
     """The land mode handed the landing does not disarm within the bound (here 6 s after the
     cut, for a test's length; the estimate climbing 2 m/s, so the bundled PX4's detector doubts
@@ -315,6 +321,7 @@ def test_a_disarm_refused_past_its_bound_ends_the_flight_not_landed(tmp_path, mo
     assert kept[-1] == "Disarmed by landing", kept  # and the landing's
 
 
+@pytest.mark.realtime
 def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     """PX4 SIH, once: the estimate read 0.09 m high when the vehicle met the ground, still in
     the land segment, and then climbed 0.2 m/s while it sat there; touchdown was seen by the
@@ -340,6 +347,7 @@ def test_an_estimate_climbing_on_the_ground_is_not_scored_as_error(tmp_path):
     assert summary["hover_thrust_learnt"] == pytest.approx(summary["hover_thrust"], rel=0.03)
 
 
+@pytest.mark.realtime
 def test_a_low_altitude_estimate_still_touches_down_slowly(tmp_path):
     """The estimate drifts 0.3 m low during the hover (PX4's was 0.29-0.38 m low): the land
     reference ends 0.3 m up, so the descent goes on until touchdown is seen."""
@@ -389,6 +397,7 @@ def test_a_vehicle_facing_south_turns_at_a_bounded_rate(tmp_path):
     assert abs(math.remainder(ref[-1], 2 * math.pi)) < 0.01  # and ends at the mission's
 
 
+@pytest.mark.realtime
 def test_with_connect_the_hover_thrust_is_the_autopilots(tmp_path):
     srv, link = lossy_vehicle(link_seed=15, params={**FAST_PX4, "MPC_THR_HOVER": 0.45})
     try:

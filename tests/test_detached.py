@@ -101,6 +101,7 @@ def _finish(proc, timeout=120):
             os.killpg(proc.pid, signal.SIGKILL)  # the bundled vehicle in its group too
 
 
+@pytest.mark.realtime
 def test_a_flight_whose_output_pipe_closes_flies_on_and_lands(tmp_path):
     proc, out = _start(tmp_path, duration=1)
     first = proc.stdout.readline()  # a reader that quits after a line, as `| head -1` does
@@ -117,6 +118,7 @@ def test_a_flight_whose_output_pipe_closes_flies_on_and_lands(tmp_path):
     assert "landed" in log and "disarmed" in log and "Traceback" not in log
 
 
+@pytest.mark.realtime
 def test_sigterm_holds_then_lands_and_exits_as_shells_expect(tmp_path):
     proc, out = _start(tmp_path, duration=60)
     try:
@@ -134,6 +136,7 @@ def test_sigterm_holds_then_lands_and_exits_as_shells_expect(tmp_path):
     assert proc.returncode == 128 + signal.SIGTERM and "Traceback" not in output
 
 
+@pytest.mark.realtime
 def test_sighup_is_flown_through(tmp_path):
     proc, out = _start(tmp_path, duration=2)
     try:
@@ -234,6 +237,7 @@ def _interrupted_ardupilot_flight(tmp_path, monkeypatch, at_s=4.0):
     return summary, folder, out.getvalue()
 
 
+@pytest.mark.realtime
 def test_an_ardupilot_failsafe_holds_in_brake_and_lands_at_its_land_speed(tmp_path, monkeypatch):
     """ArduCopter's LOITER flies the pilot's throttle stick as a climb rate: asked to hold in it,
     a vehicle with no pilot (or the stick down) sinks at the pilot's full rate; flown on
@@ -249,6 +253,7 @@ def test_an_ardupilot_failsafe_holds_in_brake_and_lands_at_its_land_speed(tmp_pa
     assert truth["vd"][after].max() < 0.6, truth["vd"][after].max()  # LAND's 0.5 m/s, no drop
 
 
+@pytest.mark.realtime
 def test_a_hold_the_autopilot_refuses_is_skipped_for_its_land(tmp_path, monkeypatch):
     """ArduCopter refuses BRAKE without a position estimate (GUIDED_NOGPS flown indoors): the
     failsafe lands at once instead of asking again until its landing bound runs out."""
@@ -260,6 +265,7 @@ def test_a_hold_the_autopilot_refuses_is_skipped_for_its_land(tmp_path, monkeypa
     assert summary["disarmed"] and "the autopilot is in LAND: watching it land" in said
 
 
+@pytest.mark.realtime
 def test_a_companion_killed_outright_takes_its_forked_vehicle_with_it(tmp_path):
     """SIGKILL leaves a companion no say; the bundled vehicle it forked (which ignores Ctrl-C
     and hangups, to be flown down) must not run on for ever with nobody to fly it."""

@@ -249,6 +249,7 @@ class FakeAutopilot(threading.Thread):
             self.heartbeat()
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("cmd, words", [
     (M.MAV_CMD_DO_SET_MODE, "refused OFFBOARD: DENIED"),
     (M.MAV_CMD_COMPONENT_ARM_DISARM, "refused to arm: DENIED"),
@@ -274,6 +275,7 @@ def test_mode_or_arming_refused_stops_the_flight_with_the_vehicles_answer(cmd, w
 
 
 
+@pytest.mark.realtime
 def test_link_lost_mid_flight_engages_the_failsafe_and_the_record_is_complete(tmp_path):
     port = free_udp_port()
     vehicle = subprocess.Popen([sys.executable, "-m", "sim", "--offboard-port", str(port),
@@ -310,6 +312,7 @@ def test_link_lost_mid_flight_engages_the_failsafe_and_the_record_is_complete(tm
     assert n > 400
 
 
+@pytest.mark.realtime
 def test_ctrl_c_holds_then_lands_and_disarms(tmp_path):
     text = (MISSIONS / "hover.yaml").read_text().replace("duration: 5", "duration: 60")
     path = tmp_path / "m.yaml"

@@ -247,6 +247,7 @@ def timed_run(e, n=40, spacing=0.005):
             for d, t in e.drain_down(0.2, stamped=True)]
 
 
+@pytest.mark.realtime
 def test_latency_keeps_the_order_and_jitter_spreads_and_reorders(ends):
     e = ends
     e.link.down.latency = 0.05
@@ -287,6 +288,7 @@ def test_gaussian_jitter_is_never_negative_and_draws_repeat_for_a_seed():
             link.stop()
 
 
+@pytest.mark.realtime
 def test_a_blackout_passes_nothing_in_its_window_then_resumes(ends):
     e = ends
     e.send_down(e.hb())
@@ -410,6 +412,7 @@ def test_a_signed_frame_passes_unchanged_and_refuses_modification():
         e.close()
 
 
+@pytest.mark.realtime
 def test_with_the_vehicle_nan_sample_and_first_arm_ack_lost():
     srv, link = start_lossy_vehicle(link_seed=1)
     c = Client(link.companion_port)
@@ -435,6 +438,7 @@ def test_with_the_vehicle_nan_sample_and_first_arm_ack_lost():
         srv.stop()
 
 
+@pytest.mark.realtime
 def test_the_proxy_runs_on_its_own_in_front_of_an_autopilot(tmp_path):
     """``tools/lossy_proxy.py`` puts this proxy in front of any autopilot's UDP link (PX4 SITL's
     by default): here the bundled vehicle, a real-time process of its own, whose offboard link

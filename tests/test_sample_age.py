@@ -384,6 +384,7 @@ def test_the_age_recovers_at_once_from_a_vehicle_clock_that_jumps():
         pytest.approx(0.002, abs=0.0015)
 
 
+@pytest.mark.realtime
 def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true_ages(tmp_path):
     """``sim: {clock_rate: 0.95}`` (``mavadrc sitl --clock-rate``): in real time the bundled
     vehicle's clock, the clock of its time_boot_ms and of its TIMESYNC answers, runs at 0.95 of
@@ -421,6 +422,7 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
 
 
 
+@pytest.mark.realtime
 def test_a_loop_that_stalls_says_how_late_it_answered(tmp_path, monkeypatch):
     """In real time a companion whose loop stops 0.3 s once (as a fit holding the interpreter
     stopped it on PX4 SIH) answers the samples that queued meanwhile late: the summary counts

@@ -66,6 +66,7 @@ def fleet3():
     sink.close()
 
 
+@pytest.mark.realtime
 def test_count_3_answers_with_three_heartbeats_on_their_own_ports(fleet3):
     fleet, clients = fleet3
     got = []
@@ -81,6 +82,7 @@ def test_count_3_answers_with_three_heartbeats_on_their_own_ports(fleet3):
     assert len(set(locals_)) == 3
 
 
+@pytest.mark.realtime
 def test_one_vehicle_flown_with_attitude_targets_climbs_while_the_others_stay_down(fleet3):
     fleet, clients = fleet3
     for c in clients:

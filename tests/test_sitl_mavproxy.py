@@ -11,6 +11,9 @@ import pytest
 
 from sitl_helpers import free_udp_port, udp_sink
 
+# MAVProxy, a program of its own, against a vehicle running in real time
+pytestmark = [pytest.mark.clients, pytest.mark.realtime]
+
 MAVPROXY = shutil.which("mavproxy.py") or os.path.join(os.path.dirname(sys.executable),
                                                        "mavproxy.py")
 

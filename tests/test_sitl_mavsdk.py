@@ -4,6 +4,9 @@ import asyncio
 
 import pytest
 
+# mavsdk_server, started by MAVSDK, flies a vehicle in real time
+pytestmark = [pytest.mark.clients, pytest.mark.realtime]
+
 mavsdk = pytest.importorskip("mavsdk")
 
 from mavsdk import System  # noqa: E402

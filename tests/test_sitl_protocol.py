@@ -41,6 +41,7 @@ def ardupilot():
     yield from connected("ardupilot")
 
 
+@pytest.mark.realtime
 def test_heartbeat_identity_px4(px4):
     srv, c = px4
     hb = c.recv("HEARTBEAT")
@@ -53,6 +54,7 @@ def test_heartbeat_identity_px4(px4):
     assert hb.get_header().incompat_flags is not None and hb._msgbuf[0] == 0xFD  # MAVLink 2
 
 
+@pytest.mark.realtime
 def test_instance_shifts_system_id():
     srv, port = start_vehicle("px4", instance=2)
     c = Client(port)
@@ -64,6 +66,7 @@ def test_instance_shifts_system_id():
         srv.stop()
 
 
+@pytest.mark.realtime
 def test_heartbeat_identity_ardupilot(ardupilot):
     srv, c = ardupilot
     hb = c.recv("HEARTBEAT")
@@ -73,6 +76,7 @@ def test_heartbeat_identity_ardupilot(ardupilot):
     assert c.recv("HEARTBEAT", cond=lambda m: m.custom_mode == 20) is not None
 
 
+@pytest.mark.realtime
 def test_every_command_gets_an_ack_and_unknown_ones_are_unsupported(px4):
     srv, c = px4
     assert c.command(M.MAV_CMD_DO_SET_SERVO, 1, 1500) == M.MAV_RESULT_UNSUPPORTED
@@ -80,6 +84,7 @@ def test_every_command_gets_an_ack_and_unknown_ones_are_unsupported(px4):
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 4, 3) == M.MAV_RESULT_ACCEPTED
 
 
+@pytest.mark.realtime
 def test_commands_for_another_system_are_dropped_and_counted(px4):
     srv, c = px4
     before = srv.stats.other_target
@@ -89,6 +94,7 @@ def test_commands_for_another_system_are_dropped_and_counted(px4):
     assert not srv.vehicle.armed
 
 
+@pytest.mark.realtime
 def test_autopilot_version_and_home_on_request(px4):
     srv, c = px4
     assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == 0
@@ -101,6 +107,7 @@ def test_autopilot_version_and_home_on_request(px4):
     assert c.command(M.MAV_CMD_REQUEST_MESSAGE, 9999) == M.MAV_RESULT_DENIED  # as PX4
 
 
+@pytest.mark.realtime
 def test_message_interval_changes_the_rate(px4):
     srv, c = px4
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 100_000) == 0
@@ -119,6 +126,7 @@ def test_message_interval_changes_the_rate(px4):
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1000) == M.MAV_RESULT_FAILED  # PX4
 
 
+@pytest.mark.realtime
 def test_default_telemetry_is_there(px4):
     srv, c = px4
     for name in ("ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT",
@@ -149,6 +157,7 @@ def read_all_params(c):
         got[m.param_id] = m
 
 
+@pytest.mark.realtime
 def test_parameter_protocol_px4(px4):
     srv, c = px4
     got = read_all_params(c)
@@ -172,6 +181,7 @@ def test_parameter_protocol_px4(px4):
     assert c.recv("PARAM_VALUE", cond=lambda m: m.param_index == 0) is not None
 
 
+@pytest.mark.realtime
 def test_parameter_protocol_ardupilot_uses_c_cast(ardupilot):
     srv, c = ardupilot
     got = read_all_params(c)
@@ -180,6 +190,7 @@ def test_parameter_protocol_ardupilot_uses_c_cast(ardupilot):
     assert c.recv("PARAM_VALUE", cond=lambda m: m.param_id == "GUID_OPTIONS").param_value == 8.0
 
 
+@pytest.mark.realtime
 def test_wind_can_be_changed_from_the_ground_station(px4):
     srv, c = px4
     c.mav.param_set_send(1, 1, b"SIM_WIND_SPD", 3.0, M.MAV_PARAM_TYPE_REAL32)
@@ -190,6 +201,7 @@ def test_wind_can_be_changed_from_the_ground_station(px4):
     assert mean == pytest.approx([0.0, -3.0, 0.0], abs=1e-9)  # from the east blows west
 
 
+@pytest.mark.realtime
 def test_empty_mission_fence_and_rally_lists(px4):
     srv, c = px4
     for kind in (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY):
@@ -206,6 +218,7 @@ def stream_for(c, seconds, **att):
         time.sleep(0.02)
 
 
+@pytest.mark.realtime
 def test_offboard_needs_a_setpoint_stream_first(px4):
     srv, c = px4
     assert c.set_mode_px4(6) == M.MAV_RESULT_TEMPORARILY_REJECTED
@@ -239,6 +252,7 @@ def fly_offboard_hover(srv, c, alt=1.0):
 
 # COM_OBL_RC_ACT 0 (Position) needs RC, which the vehicle has not: NAV_RCL_ACT (Return) follows,
 # and a vehicle already over home lands at once
+@pytest.mark.realtime
 @pytest.mark.parametrize("action, mode, behaviour", [(0, px4_mode(4, 5), "land"),
                                                        (4, px4_mode(4, 6), "land")])
 def test_offboard_loss_triggers_the_configured_failsafe_in_time(px4, action, mode, behaviour):
@@ -261,6 +275,7 @@ def test_offboard_loss_triggers_the_configured_failsafe_in_time(px4, action, mod
         assert wait_until(lambda: not srv.vehicle.armed, 5.0)  # COM_DISARM_LAND
 
 
+@pytest.mark.realtime
 def test_arming_rules(px4):
     srv, c = px4
     assert c.set_mode_px4(4, 6) == M.MAV_RESULT_ACCEPTED  # Land: not armable
@@ -272,6 +287,7 @@ def test_arming_rules(px4):
     assert not srv.vehicle.armed
 
 
+@pytest.mark.realtime
 def test_takeoff_hold_land_and_disarm_by_command(px4):
     srv, c = px4
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, NAN) == \
@@ -291,6 +307,7 @@ def test_takeoff_hold_land_and_disarm_by_command(px4):
                   cond=lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED) is not None
 
 
+@pytest.mark.realtime
 def test_bad_setpoints_are_rejected_counted_and_announced(px4):
     srv, c = px4
     for _ in range(5):
@@ -311,6 +328,7 @@ def test_bad_setpoints_are_rejected_counted_and_announced(px4):
     assert srv.vehicle.state[2] == 0.0  # still on the ground, never acted on
 
 
+@pytest.mark.realtime
 def test_ardupilot_attitude_targets_only_in_guided_and_thrust_as_climb_rate(ardupilot):
     srv, c = ardupilot
     c.attitude(thrust=0.9, mask=7)
@@ -326,6 +344,7 @@ def test_ardupilot_attitude_targets_only_in_guided_and_thrust_as_climb_rate(ardu
     assert srv.vehicle.reported().velocity[2] == pytest.approx(-1.5, abs=0.3)
 
 
+@pytest.mark.realtime
 def test_ardupilot_guid_options_bit_3_makes_thrust_thrust(ardupilot):
     srv, c = ardupilot
     c.mav.param_set_send(1, 1, b"GUID_OPTIONS", 8.0, M.MAV_PARAM_TYPE_INT32)
@@ -339,6 +358,7 @@ def test_ardupilot_guid_options_bit_3_makes_thrust_thrust(ardupilot):
     assert srv.vehicle.reported().velocity[2] < -0.5
 
 
+@pytest.mark.realtime
 def test_ardupilot_guided_timeout_levels_and_holds(ardupilot):
     srv, c = ardupilot
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 4) == M.MAV_RESULT_ACCEPTED
@@ -362,6 +382,7 @@ def make_signed_client(port, key, link_id=1):
     return c
 
 
+@pytest.mark.realtime
 def test_signing_drops_unsigned_and_badly_signed_messages():
     key = hashlib.sha256(b"mavadrc test key").digest()
     srv, port = start_vehicle("px4", signing_key=key)
@@ -391,6 +412,7 @@ def test_signing_drops_unsigned_and_badly_signed_messages():
         srv.stop()
 
 
+@pytest.mark.realtime
 def test_other_component_commands_are_not_answered(px4):
     srv, c = px4
     c.mav.command_long_send(1, 100, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)

@@ -262,6 +262,7 @@ def test_px4_preflight_auto_disarm_applies_in_offboard(px4_lockstep):
 # --- 4. PX4 offboard loss without RC -------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_px4_offboard_loss_without_rc_returns_lands_and_disarms():
     """PX4 failsafe.cpp checkModeFallback: COM_OF_LOSS_T (default 1.0 s) without setpoints ->
     COM_OBL_RC_ACT (default 0, Position mode); Position needs manual control, which the vehicle
@@ -400,6 +401,7 @@ def test_ardupilot_guided_thrust_gets_the_angle_boost(ap_lockstep, boost):
         assert dvz > 0.5  # sinks: g (1 - cos 30 deg) = 1.3 m/s/s
 
 
+@pytest.mark.realtime
 def test_ardupilot_denies_intervals_of_messages_it_does_not_send():
     """ArduPilot GCS_MAVLINK::set_message_interval: a MAVLink id without an ap_message
     (GCS_Common.cpp map[]: no DEBUG_VECT, no ODOMETRY, which ArduPilot only receives) ->
@@ -441,6 +443,7 @@ def test_ardupilot_denies_intervals_of_messages_it_does_not_send():
         srv.stop()
 
 
+@pytest.mark.realtime
 def test_ardupilot_guid_timeout_levels_and_holds_the_climb_rate_at_zero():
     """ArduCopter mode_guided.cpp angle_control_run: no SET_ATTITUDE_TARGET for GUID_TIMEOUT
     (default 3.0 s, Parameters.cpp) -> attitude level at the target's heading, body rates zero,
@@ -540,6 +543,7 @@ def test_timesync_answers_with_the_vehicle_clock(autopilot):
 # --- 8. initial heading and parameters from the command line -------------------------------------
 
 
+@pytest.mark.realtime
 def test_initial_heading_and_parameters_from_the_command_line():
     """`mavadrc sitl --heading DEG --param NAME=VALUE` (sim.cli.add_arguments): the vehicle starts
     with that yaw and the autopilot with that parameter value; an unknown parameter name or a

@@ -75,6 +75,7 @@ def lpn_rate(c, seconds):
 # --- item 1: the estimator's rate ----------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_px4_accepts_a_too_fast_interval_and_streams_at_its_estimator_rate(vehicles):
     """PX4 answers SET_MESSAGE_INTERVAL ACCEPTED whatever the rate
     (MavlinkReceiver::set_message_interval), but LOCAL_POSITION_NED sends each
@@ -91,6 +92,7 @@ def test_px4_accepts_a_too_fast_interval_and_streams_at_its_estimator_rate(vehic
     assert mi.interval_us == 2000
 
 
+@pytest.mark.realtime
 def test_ardupilot_denies_an_interval_faster_than_its_loop_and_says_why(vehicles):
     """ArduCopter streams no message faster than 0.8 x SCHED_LOOP_RATE (default 400 Hz: 3.125 ms,
     GCS_MAVLINK::cap_message_interval); GCS_MAVLINK::set_message_interval works in whole ms
@@ -119,6 +121,7 @@ def test_lockstep_serves_the_interval_asked(vehicles):
 # --- item 1: bandwidth ---------------------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_a_57600_radio_throttles_px4_streams_and_the_sample_rate_drops(vehicles):
     """A 57600-baud radio carries 5760 bytes/s; PX4 sizes its streams to half of that unless
     MAV_x_RATE says otherwise (baudrate/20, mavlink module.yaml) and scales every stream's rate
@@ -134,6 +137,7 @@ def test_a_57600_radio_throttles_px4_streams_and_the_sample_rate_drops(vehicles)
     assert srv.links[1].line is None  # the ground-station link: UDP, unlimited
 
 
+@pytest.mark.realtime
 def test_ardupilot_streams_wait_for_room_on_a_slow_radio(vehicles):
     """ArduPilot sends a message only when the port has room for it (CHECK_PAYLOAD_SIZE /
     HAVE_PAYLOAD_SPACE, GCS.h) and tries again on a later pass: on a 2880 bytes/s link the
@@ -166,6 +170,7 @@ def offsets(socks, seconds):
     return out
 
 
+@pytest.mark.realtime
 def test_samples_arrive_late_by_the_latency(vehicles):
     """The link model's down latency (sim.link_model.Way.latency_s; e.g. a telemetry radio's
     20-100 ms) delays every sample on the modelled link: against the ground-station link of the
@@ -190,6 +195,7 @@ def test_samples_arrive_late_by_the_latency(vehicles):
     assert srv.stats.link_delayed_down > 50 and srv.stats.link_delayed_up >= 1
 
 
+@pytest.mark.realtime
 def test_about_the_fraction_asked_is_lost(vehicles):
     """Loss (sim.link_model.Way.loss) drops each datagram with its probability: of the 100 Hz
     samples (one datagram each), about a quarter never arrive (binomial, n ~ 150: a few
@@ -256,6 +262,7 @@ def test_the_link_decides_the_same_way_for_the_same_seed_and_leaves_the_vehicle_
     assert np.array_equal(noise(False), noise(True))
 
 
+@pytest.mark.realtime
 def test_a_blackout_cuts_both_ways_for_its_span(vehicles):
     """A blackout ([start_s, duration_s] of vehicle time, sim.link_model.LinkModel.blackouts):
     no datagram reaches the companion inside it, and a command sent inside it is never
@@ -320,6 +327,7 @@ def test_a_bad_link_option_is_one_line_naming_it(argv, flag):
     assert text.startswith(flag + ":") and "\n" not in text
 
 
+@pytest.mark.realtime
 def test_mavadrc_sitl_says_what_the_link_did_at_exit_and_refuses_a_bad_option():
     """`python -m sim` with a link model: the drops and delays in one line at exit; a bad
     option: one line on stderr, before anything is compiled or bound."""

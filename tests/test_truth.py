@@ -319,6 +319,7 @@ def test_an_ardupilot_sitl_sends_sim_state_and_a_clean_estimate_agrees_with_it(t
     assert truth["rms_error_m"] == pytest.approx(summary["rms_error_m"], abs=0.004)
 
 
+@pytest.mark.realtime
 def test_in_real_time_a_true_sample_is_timed_by_its_arrival(tmp_path):
     """Not in lockstep a true sample is timed by its arrival after the last position sample,
     on the vehicle's clock: moving at 1.5 m/s the true track's error against the reference is
@@ -341,6 +342,7 @@ def test_in_real_time_a_true_sample_is_timed_by_its_arrival(tmp_path):
     assert truth["rms_error_m"] == pytest.approx(summary["rms_error_m"], abs=0.005)
 
 
+@pytest.mark.realtime
 def test_a_vehicle_without_truth_says_so_and_flies_as_before(tmp_path, monkeypatch):
     """A real PX4 has no ground truth: the stream is refused (or nothing comes), the summary's
     truth is None and its sources say why."""
