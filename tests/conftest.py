@@ -72,7 +72,7 @@ def warm_up_stamp(root):
     """What numba's cache of the warmed-up kernels depends on: the interpreter, numba's version
     and settings, :data:`WARM_UPS`, and every source file that mentions ``jit`` (the kernels' and
     the decorator's) by its modification time and size, as numba itself judges a cache stale.
-    A few milliseconds: no module is imported."""
+    About 0.1 s: the files are read, no module is imported."""
     from importlib.metadata import version
 
     h = hashlib.sha256()
