@@ -3,8 +3,8 @@ import contextlib
 import sys
 import time
 
+from mavadrc.design.identify import needs_design_lag
 from mavadrc.errors import FlightError, LinkError, UsageError
-from mavadrc.fast.identify import flight_design_lag
 from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word
 from mavadrc.flight.fly import Interrupted, fly, interrupt_status, interrupted
 from mavadrc.flight.summary import print_table
@@ -119,6 +119,12 @@ def read_key(path):
 def found_design_lag(mission, kind=None):
     """:func:`~mavadrc.fast.identify.flight_design_lag`, said when finding it took long (the
     kernels compiled once), before anything is sent."""
+    if not needs_design_lag(mission.controller, kind):
+        return None
+    # only now: the fast path loads the simulator's compiled kernels (seconds on a first run),
+    # which a flight that needs no design lag never uses
+    from mavadrc.fast.identify import flight_design_lag
+
     t0 = time.perf_counter()
     lag = flight_design_lag(mission, kind)
     took = time.perf_counter() - t0

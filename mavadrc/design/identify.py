@@ -513,6 +513,15 @@ def needs_identification(spec, kind=None):
     return kind in ("ladrc", "adrc") and spec.gains.get("input_lag") == "auto"
 
 
+def needs_design_lag(spec, kind=None):
+    """Whether flying ``spec`` as ``kind`` needs the lags its own gains were chosen for: it
+    identifies its vehicle and gives gains of its own (wc or wo), which are scaled to the
+    vehicle identified (:func:`mavadrc.design.gains.scale_to_vehicle`)."""
+    kind = kind or spec.kind
+    own = kind == spec.kind and ("wc" in spec.gains or "wo" in spec.gains)
+    return own and needs_identification(spec, kind)
+
+
 
 # --- mavadrc identify ----------------------------------------------------------------------------
 

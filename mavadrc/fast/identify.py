@@ -6,6 +6,7 @@ import numpy as np
 from mavadrc.design.identify import (
     failure_text,
     fit_flight,
+    needs_design_lag,
     needs_identification,
     observer_dead_time,
     observer_drag,
@@ -132,9 +133,6 @@ def flight_design_lag(mission, kind=None):
     flew the mission, 0.8 m off on PX4 SIH, and in lockstep starved the vehicle past the
     telemetry timeout).  None where the flight identifies nothing or the mission gives no gains
     of its own."""
-    spec = mission.controller
-    kind = kind or spec.kind
-    own = kind == spec.kind and ("wc" in spec.gains or "wo" in spec.gains)
-    if not (needs_identification(spec, kind) and own):
+    if not needs_design_lag(mission.controller, kind):
         return None
     return design_lag(mission)
