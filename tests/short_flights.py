@@ -23,9 +23,15 @@ safety: {geofence: {north: [-5, 5], east: [-5, 5]}, altitude: {max: 5}}
 FAST_PX4 = {"COM_SPOOLUP_TIME": 0.0}
 
 
-def short_mission(tmp_path, hover=3, extra=""):
+def short_mission(tmp_path, hover=3, extra="", telemetry_timeout_s=None):
+    """The short hover; ``telemetry_timeout_s``: its safety's (default the mission's 0.5 s)."""
+    text = SHORT.replace("HOVER", str(hover))
+    if telemetry_timeout_s is not None:
+        text = text.replace("altitude: {max: 5}}",
+                            f"altitude: {{max: 5}}, telemetry_timeout_s: {telemetry_timeout_s}}}")
+        assert f"telemetry_timeout_s: {telemetry_timeout_s}" in text
     path = tmp_path / f"short{hover}.yaml"
-    path.write_text(SHORT.replace("HOVER", str(hover)) + extra)
+    path.write_text(text + extra)
     return load_mission(path)
 
 
