@@ -254,16 +254,17 @@ def test_latency_keeps_the_order_and_jitter_spreads_and_reorders(ends):
     got = timed_run(e)
     assert [i for i, _ in got] == list(range(40))
     delays = [d for _, d in got]
-    assert min(delays) >= 0.05 and statistics.median(delays) < 0.053, delays
+    # never early, and the quickest within 3 ms of the latency: the proxy adds 50 ms, not more.
+    # A loaded machine only adds to a delay (its wake-ups), so the bounds are on the earliest
+    # arrivals: beside a busy loop per core the median was 3-10 ms late, the earliest never.
+    assert min(delays) >= 0.05 and min(delays) < 0.053, delays
     e.link.down.jitter = 0.01  # uniform: 40 .. 60 ms
     got = timed_run(e)
     assert sorted(i for i, _ in got) == list(range(40))
-    delays = [d for _, d in got]
-    # never early; late only by the machine's wake-ups: one of 40 came 0.7 ms past a 10 ms
-    # margin on a loaded CI machine, so the bound is on the 90th percentile, and the worst
-    # only has to stay far below what a wider jitter would give
-    assert min(delays) >= 0.04 and sorted(delays)[-4] < 0.065 and max(delays) < 0.1, delays
-    assert abs(statistics.mean(delays) - 0.05) < 0.004
+    delays = sorted(d for _, d in got)
+    # never earlier than the jitter allows, and spread below the latency as only the jitter can
+    # (fewer than 2 of 40 uniform draws under 47 ms: once in ~1.4 million runs)
+    assert delays[0] >= 0.04 and delays[1] < 0.047, delays
     assert statistics.pstdev(delays) > 0.003
     assert any(a > b for (a, _), (b, _) in zip(got, got[1:]))  # 5 ms apart, +-10 ms: crossed
 
@@ -309,7 +310,12 @@ def test_a_blackout_passes_nothing_in_its_window_then_resumes(ends):
     assert not [i for i in got if 0.1 <= sent[i] < 0.245]
     assert all(i in got for i in sent if sent[i] < 0.08 or sent[i] > 0.28)
     st = e.link.down.stats
-    assert 20 <= st.frames_dropped["blackout"] <= 35
+    # every sample sent inside the window is dropped and none outside it (give or take the
+    # proxy's wake-up at each edge): counted from when each was sent, so a loaded machine that
+    # sends fewer than 30 in the window's 0.15 s changes the count, not the verdict
+    inside = sum(0.105 <= t < 0.245 for t in sent.values())
+    around = sum(0.095 <= t < 0.255 for t in sent.values())
+    assert inside >= 5 and inside <= st.frames_dropped["blackout"] <= around, (inside, around)
     assert set(st.dropped_types("blackout")) == {"LOCAL_POSITION_NED"}
     begin, end = b.window()
     assert all(begin <= e.link.start_time + d.t < end for d in st.drops)
