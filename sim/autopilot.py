@@ -64,6 +64,7 @@ class Autopilot:
         self._stream_stalled = stream_stalled
         self.mode = ap.mode(ap.initial_mode)
         self.failsafe = False
+        self.failsafe_t = None  # vehicle time the last offboard-loss failsafe fired
         self._mode_before_failsafe = None  # what a failsafe switched away from
         self.last_setpoint_t = -math.inf  # vehicle time of the last proof-of-life setpoint
         #: what ATTITUDE_TARGET echoes: (q, thrust, body rates, type_mask)
@@ -173,6 +174,7 @@ class Autopilot:
         """The offboard-loss failsafe (the personality's offboard_loss_action), announced as PX4
         does: the event text, then the STATUSTEXT "Failsafe activated"."""
         self.failsafe = True
+        self.failsafe_t = self.vehicle.time
         if self._mode_before_failsafe is None:
             self._mode_before_failsafe = self.mode
         target, action = self.ap.offboard_loss_action(self.params)

@@ -266,7 +266,12 @@ def test_offboard_loss_triggers_the_configured_failsafe_in_time(px4, action, mod
     text = c.recv("STATUSTEXT", timeout=3.0, cond=lambda m: m.text == "Failsafe activated")
     t_failsafe = time.monotonic()
     assert text is not None
-    assert t_failsafe - t_stop <= 1.0 + 0.2
+    # COM_OF_LOSS_T (1 s) after the last setpoint on the vehicle's clock, one 500 Hz step
+    # late at most; on the wall clock never early (the test's own wake-ups, 0.6 s late beside a
+    # busy loop per core, are not the vehicle's)
+    fw = srv.autopilot
+    assert 1.0 < fw.failsafe_t - fw.last_setpoint_t <= 1.0 + 0.0021
+    assert t_failsafe - t_stop > 1.0 - 0.05
     assert c.recv("HEARTBEAT", cond=lambda m: m.custom_mode == mode) is not None
     assert srv.vehicle.mode == behaviour
     assert srv.vehicle.armed and not srv.vehicle.landed
@@ -516,6 +521,7 @@ def test_lockstep_is_deterministic_and_advances_one_step_per_setpoint():
     assert a[2] < -0.05  # it did fly: the position target lifted it
 
 
+@pytest.mark.slow
 def test_fuzzed_datagrams_are_dropped_and_change_nothing():
     """100 000 random, mutated, truncated and unknown datagrams between the setpoints."""
     ref, _ = lockstep_flight(1000)
