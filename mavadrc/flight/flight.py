@@ -70,6 +70,11 @@ from mavadrc.mavlink.samples import SampleGate
 LOCKSTEP_STALE_S = 5.0
 #: wall time (s) for a mode or arming change to show in the heartbeat once accepted
 CONFIRM_S = 3.0
+#: wall time (s) from connecting to the first LOCAL_POSITION_NED before the flight gives up on
+#: the vehicle's estimate; in lockstep the bundled vehicle (on the ground, disarmed) first loads
+#: its compiled kernels, which took past 5 s on a machine busy elsewhere
+FIRST_SAMPLE_S = 5.0
+FIRST_SAMPLE_LOCKSTEP_S = 30.0
 
 
 def _freeze_heap():
@@ -346,9 +351,10 @@ class Flight:
                               f"{'armed' if link.armed else 'disarmed'}, "
                               f"{vehicle_mode(link, hb.custom_mode) if hb else 'unknown mode'})")
         if v.last_sample_wall is None:
-            if clock.phase == "measure" and now - clock.wall > 5.0:
-                raise FlightError("no LOCAL_POSITION_NED from the vehicle within 5 s: does it "
-                                  "have a position estimate?")
+            limit = FIRST_SAMPLE_LOCKSTEP_S if self.lockstep else FIRST_SAMPLE_S
+            if clock.phase == "measure" and now - clock.wall > limit:
+                raise FlightError(f"no LOCAL_POSITION_NED from the vehicle within {limit:g} s: "
+                                  "does it have a position estimate?")
         elif clock.phase in ("spoolup", "mission", "touchdown", "cut"):
             why = self.supervisor.stale(now, v.last_sample_wall,
                                         max(self.setpoints.last_wall, v.handled_wall))
