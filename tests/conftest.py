@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 # One BLAS and OpenMP thread per process: the workers (one more than the cores) and the
 # vehicles and fits they start already fill the cores, and OpenBLAS's threads spin-wait after
 # each call they share.  Measured on 2 cores (test_physics, test_robustness, test_identify,
@@ -138,3 +140,11 @@ def pytest_configure(config):
             and warm_up_stamp(config.rootpath) == stamp:
         config.cache.set(WARM_UP_KEY, {"stamp": stamp,
                                        "indexes": numba_indexes(config.rootpath)[1]})
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test on the wall clock or with an outside client is slow as well: the fast tier,
+    ``-m "not slow"``, leaves out all three kinds."""
+    for item in items:
+        if item.get_closest_marker("realtime") or item.get_closest_marker("clients"):
+            item.add_marker(pytest.mark.slow)

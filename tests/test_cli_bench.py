@@ -13,6 +13,7 @@ from mavadrc.study.bench import sitl_figures
 UNITS = ("_us", "_ms", "_s", "_x_realtime", "_pct", "_pct_of_core")
 
 
+@pytest.mark.slow
 def test_bench_json_prints_the_control_and_physics_figures():
     out = subprocess.run([sys.executable, "-m", "mavadrc", "bench", "--json", "--no-sitl",
                           "--no-compare"],

@@ -180,6 +180,7 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
     assert "tiny: 2 scenarios x 3 controllers x 1 seed\n" in err  # not "1 seeds"
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     """The one line and nothing after it, with the pool's race at exit widened so it is hit
     every time (``tests/data/pool_exit_race``): the exit waits for the pool's manager."""
@@ -195,6 +196,7 @@ def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     assert text  # the experiment is the shipped tiny one, untouched
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_tune_ends_in_one_line_and_writes_nothing(tmp_path):
     out = tmp_path / "tuned.yaml"
     # a generation line: the search is running in its workers

@@ -273,6 +273,7 @@ def test_a_two_second_blackout_ends_on_the_ground_disarmed(tmp_path):
     assert wait_until(lambda: srv.mode.name == "AUTO.LOITER", 3.0), srv.mode.name
 
 
+@pytest.mark.slow
 def test_in_lockstep_our_own_slow_answer_is_no_lost_telemetry(tmp_path, monkeypatch):
     """A lockstep vehicle waits for the next setpoint, so work the companion does after one (the
     identification's fit, made at once in lockstep, took over 5 s on a loaded machine) holds the
@@ -454,6 +455,7 @@ def test_takeover_flies_a_vehicle_in_the_air_from_where_it_is(tmp_path):
 # --- signing -------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_signed_flight_against_the_signed_bundled_vehicle(tmp_path):
     key = tmp_path / "key.hex"
     key.write_text("ab" * 32 + "\n")

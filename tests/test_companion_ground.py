@@ -38,6 +38,7 @@ def ground_mission(tmp_path, hover):
 # --- takeoff, touchdown, the vehicle's own numbers ----------------------------------------------
 
 
+@pytest.mark.slow
 def test_ardupilot_arming_delay_gives_no_leap_at_lift_off(tmp_path):
     """ArduCopter keeps the motors at minimum for ARMING_DELAY_SEC (2 s) after arming; the
     flight waits it out and holds its observers on the ground, so nothing winds up."""
@@ -73,6 +74,7 @@ def _heavy_hover(tmp_path, kind, mass):
 
 
 @pytest.mark.parametrize("kind", ["ladrc", "pd"])
+@pytest.mark.slow
 def test_the_takeoff_waits_for_a_heavier_vehicle_to_lift_off(tmp_path, kind):
     """PX4 SIH at 1.4 kg, told 1.0 (its MPC_THR_HOVER): the safe defaults sat on the ground
     3.4 s while the takeoff's reference ran on 1.1 m above, then leapt after it at 0.4 m/s.
@@ -392,6 +394,7 @@ def test_a_low_altitude_estimate_still_touches_down_slowly(tmp_path):
     assert "descending until touchdown" in text
 
 
+@pytest.mark.slow
 def test_a_vehicle_facing_south_turns_at_a_bounded_rate(tmp_path):
     path = tmp_path / "south.yaml"
     path.write_text(SHORT.replace("HOVER", "3").replace("wind: breeze_1ms\n", "")
@@ -420,6 +423,7 @@ def test_with_connect_the_hover_thrust_is_the_autopilots(tmp_path):
     assert summary["sources"]["hover_thrust"] == "the vehicle's MPC_THR_HOVER"
 
 
+@pytest.mark.slow
 def test_ardupilot_angle_boost_is_divided_out(tmp_path, monkeypatch):
     """ArduCopter GUIDED multiplies the thrust of SET_ATTITUDE_TARGET by 1/cos(lean angle)
     (ATC_ANGLE_BOOST, default 1): sent as computed, the vehicle climbs in every turn.  PD (no
@@ -516,6 +520,7 @@ def test_the_ground_carrying_the_vehicle_mid_mission_ends_the_flight_unsaid(tmp_
     assert t[-1] < 1.0 + 3.0 + 12.0  # ended before the hover's end
 
 
+@pytest.mark.slow
 def test_a_vehicle_that_cannot_follow_is_held_and_landed_not_chased(tmp_path):
     """A reference the vehicle cannot fly (a 6 m/s circle under a 4 deg tilt limit): once it is
     2 m (safety.max_tracking_error) off for a second the flight stops chasing it, holds where

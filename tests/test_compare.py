@@ -188,6 +188,7 @@ print(json.dumps(_key(records)))
 """
 
 
+@pytest.mark.slow
 def test_a_dask_cluster_gives_identical_records(tiny, tiny_serial):
     import importlib.util
     import subprocess
@@ -207,6 +208,7 @@ def test_a_dask_cluster_gives_identical_records(tiny, tiny_serial):
 
 # --- the command and its folder -----------------------------------------------------------------
 
+@pytest.mark.slow
 def test_compare_writes_results_report_and_figures(tmp_path, capsys):
     from mavadrc.cli.main import main
 
@@ -297,6 +299,7 @@ def test_tune_improves_on_its_start_and_writes_a_controller(tmp_path):
     assert math.isfinite(res["cost_m"])
 
 
+@pytest.mark.slow
 def test_tune_shows_its_bounds_takes_new_ones_and_warns_on_an_edge(tmp_path):
     """The search space is printed and settable (--bounds NAME=LO:HI); an optimum on a bound
     is flagged (in the output and the YAML) since the best may lie beyond; a goal judged on the
@@ -338,6 +341,7 @@ def test_tune_shows_its_bounds_takes_new_ones_and_warns_on_an_edge(tmp_path):
     assert "on a bound: wc_xy" in controller_yaml(res)
 
 
+@pytest.mark.slow
 def test_tune_never_hands_back_gains_worse_than_its_start(tmp_path):
     """Started from good gains and held to a range of poor ones, the search cannot beat its
     start: it says so and writes the starting gains, not its worse best."""

@@ -215,6 +215,7 @@ scenarios:
 """
 
 
+@pytest.mark.slow
 def test_the_fast_path_and_the_lockstep_wire_lead_alike(tmp_path):
     """The reference a lead ahead and the drag fed forward are the same on both paths: the same
     flight to a millimetre."""
@@ -309,6 +310,7 @@ def test_a_missions_gains_keep_a_floor_of_margin_on_any_vehicle():
     assert tuple(own["wc"]) == (4.0, 4.0, 4.25)
 
 
+@pytest.mark.slow
 def test_a_mission_named_for_the_vehicle_flown_no_longer_limit_cycles(tmp_path, capsys):
     """Over MAVLink (lockstep): the spiral named for the bundled PX4 SIH quad, in calm air,
     identified in flight.  Its wc 4 kept 30 ms of delay margin there and swung +-6.3 deg at
@@ -380,6 +382,7 @@ def test_slowed_gains_keep_their_observers_and_answer_the_wander_less():
     assert nk[5] < 1.05 * ns[5]  # 1 Hz: about the same
 
 
+@pytest.mark.slow
 def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path, capsys):
     """Over MAVLink (lockstep): the bundled Crazyflie with its attitude loop at 0.45x (63 % in
     about 0.27 s) flies thesis_spiral_wind.yaml; identified in flight, the mission's gains
@@ -415,6 +418,7 @@ def test_a_vehicle_slower_than_its_file_flies_the_mission_gains_slowed(tmp_path,
     assert s["after_settle"]["max_error_m"] < MAX_SLOWED_SPIRAL_M
 
 
+@pytest.mark.slow
 def test_the_design_lag_is_found_before_anything_flies(tmp_path, monkeypatch, capsys):
     """The lag a mission's gains were chosen for comes from flying its vehicle file in process,
     which compiles the simulation's kernels on a first run (11-25 s here).  Found after the

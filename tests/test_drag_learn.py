@@ -169,6 +169,7 @@ def misjudged(tmp_path_factory):
             _fly(tmp, base + "}", "kept"))
 
 
+@pytest.mark.slow
 def test_a_misjudged_drag_is_learnt_in_flight(misjudged):
     learnt, _ = misjudged
     d = learnt["drag_learnt"]
@@ -188,6 +189,7 @@ def test_learning_the_drag_tracks_the_figure_eight_closer(misjudged):
     assert kept["after_settle"]["max_error_m"] > 0.2
 
 
+@pytest.mark.slow
 def test_the_lag_is_fitted_again_with_the_drag_learnt_and_flown_without_a_jump(tmp_path,
                                                                               monkeypatch):
     """x500_gusts' figure eight on the bundled PX4 SIH model in calm air, over MAVLink in

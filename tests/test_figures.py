@@ -82,6 +82,7 @@ def record_dir(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_plot_record_writes_four_figures(record_dir, tmp_path):
     paths = figures.plot_record(record_dir, out=tmp_path / "figs")
     names = sorted(p.name for p in paths)
@@ -90,6 +91,7 @@ def test_plot_record_writes_four_figures(record_dir, tmp_path):
         _check_png(p, p.stem)
 
 
+@pytest.mark.slow
 def test_plot_record_pd_has_no_observer(tmp_path):
     _write_record(tmp_path, controller="PD")
     table = record.read_table(tmp_path / "controller.csv")
@@ -204,6 +206,7 @@ def test_mavutil_reads_every_frame(tlog):
     assert types["NAMED_VALUE_FLOAT"] == 600
 
 
+@pytest.mark.slow
 def test_plot_tlog_and_main(tlog, tmp_path, capsys):
     path, _ = tlog
     paths = figures.plot_tlog(path, tmp_path)
@@ -382,6 +385,7 @@ def test_a_scenario_figure_names_each_controller_once_outside_the_panels(monkeyp
     plt.close(fig)
 
 
+@pytest.mark.slow
 def test_a_record_with_truth_draws_the_true_path_and_error_beside_the_estimates(drawn, tmp_path):
     """truth.csv (a simulator's true state): path3d.png and error.png draw it beside the
     estimate's, its error taken against the reference at the true samples' times."""

@@ -73,6 +73,7 @@ w.close()
     assert runs.read_text().splitlines() == ["run"]
 
 
+@pytest.mark.slow
 def test_the_controller_made_in_the_process_is_the_one_made_here(worker):
     """The doublets of thesis_spiral_wind on the bundled Crazyflie, fitted and the mission's
     LADRC made with the model: in the worker and here, the same fit, gains, margins and
@@ -102,6 +103,7 @@ def test_the_controller_made_in_the_process_is_the_one_made_here(worker):
         assert a_h[1] == a_p[1]
 
 
+@pytest.mark.slow
 def test_a_flight_freezes_the_heap_for_its_loop_and_unfreezes_it_after(tmp_path, monkeypatch):
     """A lockstep hover over MAVLink: the loop runs with the heap frozen (so a collection
     walks only what the flight made), and the flight leaves it unfrozen."""

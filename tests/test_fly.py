@@ -70,6 +70,7 @@ def shipped_flight(tmp_path_factory):
 
 @pytest.mark.parametrize("name", sorted(BOUNDS))
 @pytest.mark.parametrize("kind", ["ladrc", "adrc", "pd"])
+@pytest.mark.slow
 def test_each_controller_flies_each_mission_within_bounds(name, kind, shipped_flight):
     summary, folder = shipped_flight(name, kind)
     assert summary["landed"] and summary["aborted"] == []
@@ -89,6 +90,7 @@ def test_adrc_rejects_the_wind_better_than_pd(shipped_flight):
     assert lad["after_settle"]["rms_error_m"] * 3 < pd["after_settle"]["rms_error_m"]
 
 
+@pytest.mark.slow
 def test_lockstep_flights_are_identical_for_the_same_seed(tmp_path, monkeypatch):
     """Turbulence included: the controller table of two flights matches byte for byte, whether
     the vehicle was forked from this process or started as ``python -m sim``."""
@@ -160,6 +162,7 @@ def test_the_hover_thrust_learnt_in_flight_is_recorded_and_said(tmp_path):
 # --- ArduPilot ------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_ardupilot_path_sets_guid_options_and_flies(tmp_path):
     summary, _ = fly_quiet(load_mission(MISSIONS / "ardupilot_hover.yaml"), tmp_path)
     assert summary["autopilot"] == "ardupilot" and summary["landed"]

@@ -203,6 +203,7 @@ safety: {geofence: {north: [-10, 10], east: [-10, 10]}, altitude: {max: 8}}
 """
 
 
+@pytest.mark.slow
 def test_in_flight_the_takeoff_learns_the_weight_and_the_doublets_hold_it(tmp_path, monkeypatch):
     """An x500 40 % heavier than its file, whose hover thrust the companion is told (as PX4 SIH
     was flown with SIH_MASS 1.4 and MPC_THR_HOVER 0.5), over MAVLink in lockstep.  Told the
@@ -268,6 +269,7 @@ def test_sample_latency_is_identified_as_dead_time_within_one_sample():
         assert abs((b - a) - 0.04) <= 1.0 / 250, (base, late)
 
 
+@pytest.mark.slow
 def test_in_turbulence_the_drifting_disturbance_keeps_the_fit(monkeypatch):
     """x500 in moderate Dryden turbulence with a 4 m/s mean wind: four seeds within 10 % of the
     calm figure."""
@@ -284,6 +286,7 @@ def test_in_turbulence_the_drifting_disturbance_keeps_the_fit(monkeypatch):
         assert rec["input_lag"][:2] == pytest.approx(calm[:2], rel=0.10), (seed, rec)
 
 
+@pytest.mark.slow
 def test_mavadrc_identify_flies_fits_writes_and_flies_the_result(tmp_path, capsys, monkeypatch):
     """End to end over MAVLink (the bundled vehicle in lockstep): take off, doublets on the
     safe gains, the fit, the observers' model switched to it in flight, landed; the file
@@ -544,6 +547,7 @@ def _noisy_vertical_fit(monkeypatch):
     monkeypatch.setattr(F, "fit_flight", scrambled)
 
 
+@pytest.mark.slow
 def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, monkeypatch,
                                                                        capsys):
     """On PX4 SIH the vertical fit once came out with gain -19 (its height estimate drifting
@@ -576,6 +580,7 @@ def test_a_vertical_fit_that_fails_leaves_the_horizontal_model_flying(tmp_path, 
     assert any("could not be identified on axis z" in w for w in s["warnings"])
 
 
+@pytest.mark.slow
 def test_mavadrc_identify_refuses_to_write_a_model_missing_an_axis(tmp_path, monkeypatch, capsys):
     """A file with no vertical model would fly the vertical on a mission's own gains with no
     model, not the safe ones: ``mavadrc identify`` says which axis failed and writes nothing."""

@@ -276,6 +276,7 @@ def test_the_identified_shape_is_flown_by_the_mission_gains_and_by_the_slowed_de
         resolve_gains(bare, identified=lag)["wc"]
 
 
+@pytest.mark.slow
 def test_the_takeoff_pid_keeps_more_margin_than_the_safe_ladrc_on_every_plant():
     """The PID that flies the takeoff of an identifying flight (flight.TAKEOFF_WC) reads the
     velocity measured: on every plant of the family, and on PX4 SIH's response (two lags of

@@ -253,6 +253,7 @@ def test_ladrc_attitude_rejects_a_constant_torque_with_zero_steady_error():
     assert within[first:].all() and first * 0.001 < 0.3
 
 
+@pytest.mark.slow
 def test_pd_attitude_leaves_the_torque_offset():
     kp, kd = 625.0, 50.0
     ctrl = AttitudeController("pd", h=0.001, inertia=CF, kp=kp, kd=kd)

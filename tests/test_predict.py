@@ -162,6 +162,7 @@ wind: calm
 
 
 @pytest.mark.parametrize("kind", ["ladrc", "adrc"])
+@pytest.mark.slow
 def test_a_flight_that_predicts_tracks_as_closely_and_says_so(kind, tmp_path):
     """Flown against the bundled PX4 SIH quad (told its response): predicting, LADRC tracks
     the figure eight within 8 mm after settling, closer than without; ADRC within 3 cm, a

@@ -100,6 +100,7 @@ def test_min_clearance_is_checked_and_named(tmp_path):
     assert load_mission(path).safety.min_clearance == 0.5  # on by default
 
 
+@pytest.mark.slow
 def test_a_true_estimate_agrees_with_the_range_finder(tmp_path):
     """The bundled vehicle's range finder (``sim: {rangefinder: true}``, DISTANCE_SENSOR at PX4's
     10 Hz) beside an estimate that is the truth: aligned at rest, within 2 cm all flight, and
@@ -130,6 +131,7 @@ def test_the_ground_after_the_touchdown_is_not_set_beside_the_estimate(tmp_path)
     assert summary["rangefinder"]["max_difference_m"] < 0.3
 
 
+@pytest.mark.slow
 def test_a_drifting_estimate_is_caught_by_the_range_finder_before_the_ground(tmp_path):
     """The height estimate climbs 0.1 m/s: the loop holds it at 1 m while the vehicle sinks.
     Without a range finder nothing sees it until the vehicle is on the ground (the truth at 0);
@@ -164,6 +166,7 @@ def test_a_drifting_estimate_is_caught_by_the_range_finder_before_the_ground(tmp
     assert (truth0["down"][0] - truth0["down"][airborne & (truth0["t"] > 3.0)]).min() < 0.01
 
 
+@pytest.mark.slow
 def test_a_lift_off_the_estimate_alone_reads_waits_for_the_range_finder(tmp_path):
     """A vehicle 1.4x as heavy as told, whose height estimate climbs 0.1 m/s from the start (as
     PX4 SIH's read 0.13-0.19 m/s on the ground at 1.4 kg): the estimate reads a lift-off at

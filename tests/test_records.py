@@ -6,6 +6,8 @@ import json
 import math
 from pathlib import Path
 
+import pytest
+
 from mavadrc.cli.main import main
 from mavadrc.flight.summary import print_table
 from mavadrc.flight.record import FlightRecord, error_figures
@@ -19,6 +21,7 @@ def strict(text):
     return json.loads(text, parse_constant=refuse)
 
 
+@pytest.mark.slow
 def test_the_record_reproduces_a_flight_with_every_override(tmp_path, capsys):
     argv = ["fly", str(ROOT / "configs" / "missions" / "hover.yaml"), "--lockstep", "--seed", "7",
             "--wind", "moderate_gusts", "--controller", "adrc", "--no-figures", "-q"]

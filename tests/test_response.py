@@ -56,6 +56,7 @@ def test_a_folder_without_a_tlog_is_a_clear_error(tmp_path, capsys):
     assert "not found" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_bundled_flight_reads_as_the_model_identified_in_it(tmp_path, capsys):
     """``mavadrc identify`` on the bundled Crazyflie in lockstep, then ``mavadrc response`` on
     its record: the doublets make the response coherent, and the measured phase agrees with the

@@ -51,6 +51,7 @@ def test_the_attitude_answers_as_slowly_as_on_the_real_autopilot(name):
 
 @pytest.mark.parametrize("name, autopilot", [("px4_sih_quad", "px4"),
                                              ("arducopter_quad", "ardupilot")])
+@pytest.mark.slow
 def test_a_fast_observer_limit_cycles_there_as_on_the_real_one_and_the_record_says_so(
         name, autopilot, tmp_path):
     text = (open("configs/missions/ardupilot_hover.yaml").read()
@@ -77,6 +78,7 @@ def test_a_fast_observer_limit_cycles_there_as_on_the_real_one_and_the_record_sa
 @pytest.mark.parametrize("kind", ["ladrc", "adrc"])
 @pytest.mark.parametrize("name, autopilot", [("px4_sih_quad", "px4"),
                                              ("arducopter_quad", "ardupilot")])
+@pytest.mark.slow
 def test_the_default_gains_do_not_limit_cycle_there(kind, name, autopilot, tmp_path):
     """No gains, no input model given: the defaults (wc 1, wo 4) hold the slow vehicles within
     3 deg of roll/pitch oscillation on the same waypoints where wc 2.5 / wo 12.5 swing past 15, and

@@ -50,6 +50,7 @@ def windy(tmp_path_factory):
     return summary, table, stream.getvalue()
 
 
+@pytest.mark.slow
 def test_lifting_off_into_the_wind_on_the_takeoff_pid_drifts_a_third_as_far(windy):
     """Measured: 0.065 m in the takeoff (the safe LADRC from the ground: 0.188)."""
     summary, table, text = windy
@@ -120,6 +121,7 @@ safety: {geofence: {north: [-20, 20], east: [-20, 20]}, altitude: {max: 15}}
 """
 
 
+@pytest.mark.slow
 def test_the_takeoff_starts_where_the_estimate_has_the_vehicle(tmp_path, monkeypatch):
     """The bundled x500 with its position estimate wandering as PX4 SIH's does (6 cm RMS): over
     the seconds between the takeoff spot's measurement and the mission's start (the mode

@@ -102,6 +102,7 @@ scenarios:
 """
 
 
+@pytest.mark.slow
 def test_the_fast_path_and_the_lockstep_wire_size_the_thrust_alike(tmp_path):
     """Sized for the tilt measured, the two paths still fly the same flight: the fast path
     takes the tilt of the period before each sample, as the flight has it from the ATTITUDE

@@ -50,6 +50,7 @@ def flights(tmp_path_factory):
             for w in (0.0, 0.06) for p in (False, True)}
 
 
+@pytest.mark.slow
 def test_the_loop_reads_the_wander_as_motion_and_amplifies_it(flights):
     """Measured: 0.2-0.25x the wander's band RMS without it (the white noise and the loop's own
     ripple), 1.18-1.37x with it (PX4 SIH flown, x500_gusts: 1.1-1.2x); the max error after
@@ -109,6 +110,7 @@ def _wander_flown(scenario, controller, seeds=range(3)):
     return [run_inprocess(exp, i, j, seed)[0]["after_settle"] for seed in seeds]
 
 
+@pytest.mark.slow
 def test_the_spiral_on_a_wandering_px4_sih_meets_px4_sihs_floor():
     """configs/experiments/estimate_wander.yaml, three seeds: PX4 SIH's wander (60 mm) costs
     the spiral 0.03-0.04 m on the bundled PX4 SIH quad, and leaves it where PX4 SIH flew it
@@ -126,6 +128,7 @@ def test_the_spiral_on_a_wandering_px4_sih_meets_px4_sihs_floor():
     assert got["wander 60 mm (PX4 SIH's)", "wc 2.1 tilt 35"] > wandering + 0.02, got
 
 
+@pytest.mark.slow
 def test_the_observers_kept_answer_a_smooth_wander_better_and_white_noise_worse():
     """configs/experiments/estimate_wander.yaml, seeds 0-2: the spiral's rule since 2026-12-05
     keeps the mission's wo 23.9 where it slows wc to 2.1 on PX4 SIH's response.  Against PX4
