@@ -77,6 +77,18 @@ def test_two_message_intervals_are_two_pieces_of_work(wire):
     assert [(a[2], a[3], a[4]) for a in wire.sent[2:]] == [(SMI, 1, ATT)]
     assert s.on_ack(ack(SMI, M.MAV_RESULT_DENIED)) is att and att.result == M.MAV_RESULT_DENIED
     assert s.on_ack(ack(SMI)) is None and s.unmatched == 1  # none waits any more
+    # the refusal the user sees names the message it refused (the acceptance is not shown)
+    assert wire.texts == ["MAV_CMD_SET_MESSAGE_INTERVAL (ATTITUDE): DENIED"]
+
+
+def test_a_refused_request_names_its_message_and_an_unknown_one_its_number(wire):
+    s = wire.sender()
+    s.send(M.MAV_CMD_REQUEST_MESSAGE, [M.MAVLINK_MSG_ID_DISTANCE_SENSOR], target_system=1)
+    s.on_ack(ack(M.MAV_CMD_REQUEST_MESSAGE, M.MAV_RESULT_FAILED))
+    s.send(SMI, [60999, 1000], target_system=1)
+    s.on_ack(ack(SMI, M.MAV_RESULT_UNSUPPORTED))
+    assert wire.texts == ["MAV_CMD_REQUEST_MESSAGE (DISTANCE_SENSOR): FAILED",
+                          "MAV_CMD_SET_MESSAGE_INTERVAL (message 60999): UNSUPPORTED"]
 
 
 def test_the_same_request_again_replaces_the_first(wire):

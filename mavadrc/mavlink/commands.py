@@ -50,6 +50,22 @@ def command_name(cmd):
     return COMMAND_NAMES.get(cmd, str(cmd))
 
 
+def message_name(msgid):
+    """MAVLink's name of a message id ("DISTANCE_SENSOR"), or "message N" if the dialect has
+    none."""
+    cls = M.mavlink_map.get(int(msgid))
+    return cls.msgname if cls is not None else f"message {int(msgid)}"
+
+
+def work_name(cmd, param1=None):
+    """A command as the user reads it, with what it is about: "MAV_CMD_SET_MESSAGE_INTERVAL
+    (DISTANCE_SENSOR)" for a command keyed by the message it asks for."""
+    name = command_name(cmd)
+    if cmd in KEYED_BY_PARAM1 and param1 is not None:
+        return f"{name} ({message_name(param1)})"
+    return name
+
+
 class Command:
     """One COMMAND_LONG until the vehicle answers it, as MAVSDK's command sender does: sent
     through ``send(target_system, target_component, command, confirmation, *params)`` at once,
@@ -185,5 +201,5 @@ class CommandSender:
                 ack.command in ANNOUNCED and ack.result == M.MAV_RESULT_ACCEPTED:
             self._announce(M.MAV_SEVERITY_INFO if ack.result == M.MAV_RESULT_ACCEPTED
                            else M.MAV_SEVERITY_WARNING,
-                           f"{command_name(ack.command)}: {result_name(ack.result)}")
+                           f"{work_name(ack.command, c.params[0])}: {result_name(ack.result)}")
         return c
