@@ -129,7 +129,9 @@ def test_sigterm_holds_then_lands_and_exits_as_shells_expect(tmp_path):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)  # the bundled vehicle in its group too
     summary = json.loads((folder / "summary.json").read_text())
-    assert "terminated (SIGTERM): hold, then land" in output
+    said = [line for line in output.splitlines() if "hold, then land" in line]
+    assert said == ["terminated by SIGTERM: hold, then land (SIGTERM again to leave the "
+                    "vehicle to its autopilot)"], output
     assert summary["aborted"] == ["terminated by SIGTERM"]
     assert summary["disarmed"]  # landed and disarmed: never left to the autopilot in offboard
     assert summary["duration_s"] < 40  # cut short: not the 60 s hover flown to its end

@@ -333,7 +333,12 @@ def test_ctrl_c_holds_then_lands_and_disarms(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert "interrupted: hold, then land" in output
+    # said once, with what a second Ctrl-C does; the vehicle's state at disarm said plainly
+    said = [line for line in output.splitlines() if "hold, then land" in line]
+    assert said == ["interrupted by the user: hold, then land (Ctrl-C again to leave the "
+                    "vehicle to its autopilot)"], output
+    assert [line for line in output.splitlines() if line.startswith("disarmed")] == [
+        "disarmed (AUTO.LOITER, 0.0 m up)"], output
     summary = json.loads((folder / "summary.json").read_text(), parse_constant=_no_nan)
     assert summary["aborted"] == ["interrupted by the user"]
     assert summary["disarmed"]  # the autopilot landed it and disarmed: never left in offboard

@@ -24,6 +24,12 @@ UNREACHABLE_S = 10.0
 HOLD_CONFIRM_S = 3.0
 
 
+
+def _doing(action):
+    """What a failsafe action does, as the console says it."""
+    return ("watching the autopilot land" if action == WATCH else "landing" if action == LAND
+            else "hold, then land")
+
 class Failsafe:
     """The supervisor's action in force (``action``, None: none) and its progress (``step``:
     "hold", "land", "watch" or "disarm", the mode asked for now)."""
@@ -48,9 +54,16 @@ class Failsafe:
         self._sent = 0.0
         self._hold_cmd = None
 
-    def escalate(self, condition, why):
+    def escalate(self, condition, why, hint=None):
+        """``condition`` (a supervisor's rule) for the reason ``why``: start the failsafe it
+        asks for, said in one line (``hint``, in brackets after it: what the user can do next).
+        A condition that asks no more than the failsafe already under way is said only when it
+        has a ``hint`` (the user's own interrupt always gets an answer)."""
         action = self.supervisor.report(condition, why)
+        more = f" ({hint})" if hint else ""
         if action is None:
+            if hint and self.action is not None:
+                self.notices.say(f"{why}: already {_doing(self.action)}{more}")
             return
         if action == GIVE_UP:
             return self.give_up(why)
@@ -59,9 +72,7 @@ class Failsafe:
                 phase == "spoolup" and not self.link.armed):
             # nothing in the air: a vehicle on the ground is disarmed, not landed
             return self._ground_abort(why)
-        doing = ('watching the autopilot land' if action == WATCH else 'landing'
-                 if action == LAND else 'hold, then land')
-        self.notices.say(f"{why}: {doing}")
+        self.notices.say(f"{why}: {_doing(action)}{more}")
         self.start(action)
 
     def left_control(self):
@@ -175,8 +186,9 @@ class Failsafe:
         hb = self.link.heartbeat_since(self.wall)
         if hb is not None and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED \
                 and self.clock.phase != "done":
+            where = self.last_known(armed=False, age=False)
             self.end_disarmed(hb, "disarmed" + ("" if self.progress.handed_over
-                                                else f"; {self.last_known()}"))
+                                                else f" ({where})"))
 
     def end_disarmed(self, hb, text):
         """A heartbeat shows the vehicle disarmed: the flight is over.  Still in our mode (PX4
@@ -204,16 +216,18 @@ class Failsafe:
         self.notices.say(f"{why}: giving up; last known: {self.last_known()}")
         self.clock.phase = "done"
 
-    def last_known(self):
-        """The vehicle's last known state, in a line: "armed, AUTO.LAND, 1.4 m, 3.2 s ago"."""
+    def last_known(self, armed=True, age=True):
+        """The vehicle's last known state, in a line: "armed, AUTO.LAND, 1.4 m up, 3.2 s ago"
+        (without the first word when not ``armed``, without the last two when not ``age``)."""
         now = time.monotonic()
         parts = []
         if self.link.heartbeat is not None:
-            parts.append("armed" if self.link.armed else "disarmed")
+            if armed:
+                parts.append("armed" if self.link.armed else "disarmed")
             parts.append(vehicle_mode(self.link))
         last, origin = self.v.last, self.progress.origin
         if last is not None and origin is not None:
             parts.append(f"{origin[2] - last.pos[2]:.1f} m up")
-        if self.v.last_sample_wall is not None:
+        if age and self.v.last_sample_wall is not None:
             parts.append(f"{now - self.v.last_sample_wall:.1f} s ago")
         return ", ".join(parts) if parts else "nothing heard"

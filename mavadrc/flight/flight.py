@@ -264,14 +264,10 @@ class Flight:
                 self._interrupts += 1
                 if self._interrupts > 1:
                     failsafe.give_up("a second interrupt")
-                elif isinstance(exc, Terminated):
-                    self.say(f"terminated ({exc.signame}): hold, then land ({exc.signame} again "
-                             "to leave the vehicle to its autopilot)")
-                    failsafe.escalate("interrupted", interrupt_reason(exc))
                 else:
-                    self.say("interrupted: hold, then land (Ctrl-C again to leave the vehicle "
-                             "to its autopilot)")
-                    failsafe.escalate("interrupted", interrupt_reason(exc))
+                    again = exc.signame if isinstance(exc, Terminated) else "Ctrl-C"
+                    failsafe.escalate("interrupted", interrupt_reason(exc),
+                                      hint=f"{again} again to leave the vehicle to its autopilot")
             except FlightError as exc:
                 self._refused(str(exc))
             except Exception as exc:  # an error of ours never leaves the vehicle unattended
