@@ -5,6 +5,7 @@ import io
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -105,6 +106,22 @@ def test_a_connect_that_hears_nothing_leaves_no_record_folder(tmp_path):
             progress=False, stream=out)
     assert list(tmp_path.iterdir()) == []
     assert "waiting for an autopilot's heartbeat on udpin:127.0.0.1:" in out.getvalue()
+
+
+def test_a_tcp_link_with_nobody_there_is_one_line_naming_its_tries(capsys, tmp_path):
+    """pymavlink prints "[Errno 111] Connection refused sleeping" on every refused try; the
+    user reads one line with the address, the reason and the tries instead."""
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code = main(["fly", str(MISSIONS / "hover.yaml"), "--connect", f"tcp:127.0.0.1:{port}",
+                 "--no-figures", "-q", "--out", str(tmp_path / "runs")])
+    out, err = capsys.readouterr()
+    assert code == 1 and not (tmp_path / "runs").exists()
+    assert "sleeping" not in out + err and "Errno" not in out
+    assert err.strip().splitlines()[-1] == (
+        f"mavadrc fly: cannot open tcp:127.0.0.1:{port}: [Errno 111] Connection refused "
+        "(3 tries, 1 s apart)")
 
 
 def interrupt_when(args, marker, stream="stderr", within=120.0, path=()):

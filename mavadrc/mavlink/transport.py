@@ -15,7 +15,9 @@ everything received must be.
 """
 
 import collections
+import contextlib
 import errno
+import io
 import re
 import select
 import socket
@@ -23,6 +25,11 @@ import time
 
 from mavadrc.errors import LinkError
 from mavadrc.mavlink.dialect import M, mavutil
+
+#: a TCP link (tcp:HOST:PORT) is tried this many times, this many seconds apart, before the
+#: flight gives up on it (an autopilot's SITL may still be starting)
+TCP_TRIES = 3
+TCP_RETRY_S = 1.0
 
 #: accepted unsigned on a signed link (as PX4 and ArduPilot do: radios cannot sign)
 UNSIGNED_ALLOWED = (M.MAVLINK_MSG_ID_RADIO_STATUS,)
@@ -145,12 +152,17 @@ class Transport:
             self.datagrams = True
             self.answers_sender = device.startswith("udpin:")
         else:
+            tries = "" if not device.startswith("tcp:") else \
+                f" ({TCP_TRIES} tries, {TCP_RETRY_S:g} s apart)"
             try:
-                self.conn = mavutil.mavlink_connection(
-                    device, baud=baud, source_system=1,
-                    source_component=M.MAV_COMP_ID_ONBOARD_COMPUTER, autoreconnect=True)
+                # pymavlink prints "<error> sleeping" on each refused try: said once, below
+                with contextlib.redirect_stdout(io.StringIO()):
+                    self.conn = mavutil.mavlink_connection(
+                        device, baud=baud, source_system=1,
+                        source_component=M.MAV_COMP_ID_ONBOARD_COMPUTER, autoreconnect=True,
+                        retries=TCP_TRIES, reconnect_delay=TCP_RETRY_S)
             except (OSError, ImportError) as exc:
-                raise LinkError(f"cannot open {url}: {exc}") from exc
+                raise LinkError(f"cannot open {url}: {exc}{tries}") from exc
             self.mav = self.conn.mav
             self.datagrams = self.answers_sender = False
         if signing_key is not None:
