@@ -195,7 +195,10 @@ def test_the_controller_and_the_mission_file_check_the_latency_and_the_thrust_es
             mission(body)
     for body, why in (("  type: ladrc\n  latency: -0.1\n", "latency"),
                       ("  type: ladrc\n  latency: soon\n", "latency"),
-                      ("  type: pid\n  latency: auto\n", "ladrc and adrc only")):
+                      ("  type: pid\n  latency: auto\n", "ladrc and adrc only"),
+                      # refused in the file, not by the controller after the vehicle started
+                      ("  type: pd\n  input_lag: [0.1, 0.1, 0.05]\n", "ladrc and adrc only"),
+                      ("  type: pid\n  input_lag: 0.1\n", "controller.input_lag")):
         with pytest.raises(ConfigError, match=why):
             mission(body)
 

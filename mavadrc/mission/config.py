@@ -425,6 +425,8 @@ def read_controller(sec, kinds=None):
             c.gains["input_lag"] = sec.string("input_lag")
         else:
             c.gains["input_lag"] = tuple(sec.vector("input_lag", 3, scalar_ok=True, ge=0.0))
+            sec.check("input_lag", c.kind in ("ladrc", "adrc"),
+                      "the input model is part of the observers' model: ladrc and adrc only")
     if sec.has("input_dead_time") or sec.has("input_lags"):
         # the input model shaped as identified: a dead time, then input_lags equal lags
         # sharing the rest of input_lag (its 63 % time)
