@@ -407,7 +407,7 @@ class ThesisWind(Wind):
 
     With the published numbers f_wi = -0.248 N per rotor: -0.99 N on each axis, 33 m/s^2 on a
     30 g vehicle for a 1 m/s wind, and k_drag = rho/2 (as eq. 12's text defines it) gives a yaw
-    torque of 2.59 N m. docs/vehicles_and_wind.md explains why this is not a wind model.
+    torque of 2.59 N m. docs/vehicle.md explains why this is not a wind model.
     """
 
     has_forces = True

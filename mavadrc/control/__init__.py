@@ -5,7 +5,8 @@ observer), the PD baseline and a PX4-style cascaded PID, each on one channel; th
 controller (three channels and the geometric map to attitude + thrust) and the attitude controller
 (three channels to torques); the rotations (quaternions, Euler angles) that these laws, the
 bundled vehicle and the figures share.
-The laws are the corrected forms of the thesis's equations; see the README.
+The laws are the corrected forms of the thesis's equations; docs/thesis.md lists each
+correction.
 """
 
 from .attitude import AttitudeController

@@ -6,8 +6,8 @@ with numba.  A channel controller is two small vectors: a *state* vector (``S_*`
 holders of those vectors; the position and attitude controllers and batch experiments keep one row
 per channel in a 2-D array and call :func:`channel_update` on each row.
 
-The laws are the corrected ones of the project's ADRC notes (see the README, "Corrections to the
-thesis"): ``d = r*h^2`` in ``fhan``; the TD is a discrete recursion at the real step; the NLSEF is
+The laws are the corrected ones of the project's ADRC notes (docs/thesis.md,
+"Corrections"): ``d = r*h^2`` in ``fhan``; the TD is a discrete recursion at the real step; the NLSEF is
 ``u0 = -fhan(e1, c*e2, r, h1)`` and ``u = (u0 + a - z3)/b0``, the feed-forward ``a`` the TD's own
 acceleration ``fh`` when the TD runs, else the reference's ``rddot``; the LESO's second state
 integrates ``z3 - l2*(z1 - y) + b0*u``; PD and LADRC use ``z2 - rdot`` for the rate error.

@@ -204,7 +204,7 @@ def resolve_gains(spec, kind=None, vehicle=None, attitude_controller="px4", iden
 def _safe_axes(gains, axes):
     """``gains`` with the axes ``axes`` (indices) flown as the safe default LADRC flies them
     (:data:`SAFE_WC`, :data:`SAFE_WO`, no input model, no drag): stable on any response of
-    0.03-0.3 s with no model (README, "Safe defaults and the delay margin")."""
+    0.03-0.3 s with no model (docs/controllers.md)."""
     out = dict(gains)
     for key, value in (("wc", SAFE_WC), ("wo", SAFE_WO), ("input_lag", 0.0),
                        ("input_dead_time", 0.0), ("drag", 0.0)):
@@ -291,7 +291,7 @@ SCALE_TOLERANCE = 1.15
 #: at the tilt limit; x500_gusts' wc 2 kept 36-38 % (with its wo 10 of then).  At that share
 #: both swung +-6-10 deg at 1 Hz there (the flights' own attitude_oscillation; an earlier
 #: reading by hand had said 2.3-2.4): the loop answering the estimate's noise, and slowing them further (wc 1.6) traded
-#: the swing for a slow error twice as large (README, "Flown in flight against real autopilots").
+#: the swing for a slow error twice as large (docs/results.md).
 MISSION_MARGIN_SHARE = 0.35
 
 

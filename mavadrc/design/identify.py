@@ -7,7 +7,7 @@ on the vehicle being flown, never read from a model of it:
 1. the vehicle takes off and hovers on the safe default gains (:data:`mavadrc.design.gains.SAFE_WC`,
    no input model; or, when the mission asks, takes off on a PID on the measured velocity,
    :data:`mavadrc.design.gains.TAKEOFF_KIND`, which hands it over to them before the doublets); both
-   hold on any vehicle of the family the README describes;
+   hold on any vehicle of the family docs/vehicle.md describes;
 2. it flies acceleration doublets about the hover point, one axis after the other
    (:class:`mavadrc.mission.trajectories.Doublets`: +-2 m/s^2 horizontally, about 11 deg of tilt, and
    +-1 m/s^2 vertically, 0.4 s each way, 0.32 m and 0.16 m of excursion; 12.6 s), then a drag

@@ -242,7 +242,7 @@ def swing_warning(osc):
     its kind said as measured.  A regular swing (alike period after period) is a limit cycle:
     the controller too fast for the vehicle's attitude response.  An irregular one is no steady
     cycle: a loop's resonance driven by noise or wind (PX4 SIH's swing on `x500_gusts`, driven
-    by its position estimate's noise: README) swings so, and so does an instability broken up
+    by its position estimate's noise: docs/vehicle.md) swings so, and so does an instability broken up
     by lost or late samples and the tilt limit (fast path: 20-59 deg read 0.17-0.59).  Either
     way the flight is no good one, whatever its error says.  On a record too short to tell the
     kind (``limit_cycle`` None), no kind is named."""

@@ -62,7 +62,7 @@ class ControllerSpec:
     #: what flies the takeoff before the identification (``input_lag: auto``): "safe", the safe
     #: default LADRC that flies the doublets, or "pid", a PID on the measured velocity, stiffer
     #: against the wind at the lift-off but misled by a velocity estimate that strays
-    #: (README, "The takeoff's PID")
+    #: (docs/controllers.md)
     takeoff: str = "safe"
 
 

@@ -24,7 +24,7 @@ An experiment file (``configs/experiments/*.yaml``)::
         thesis: {PD: {max_error_xyz_m: [0.018, 0.033, 0.031], note: "fig. 8a"}}
         sample_rate_hz: 50        # every controller at 50 Hz here, one step per position sample
         input_model_scale: 2      # every observer's input model (input_lag) x2 of the truth
-        sim: {mass_scale: 1.3}    # the vehicle against its file (mission keys, README)
+        sim: {mass_scale: 1.3}    # the vehicle against its file (mission keys, docs/flying.md)
     goals:                        # claims the report checks, measured
       - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
          metric: after_settle.max_error_m, at_most: 0.05}
