@@ -13,6 +13,17 @@ from .sensors import CLOCK_RATES, TYPICAL_NOISE, WANDER_CORNER_HZ
 from .server import SitlServer
 
 
+class UsageError(SystemExit):
+    """A bad option of ``mavadrc sitl``: said in one line on stderr, exit status 2, as every
+    mavadrc command (and argparse) exits for a usage error."""
+
+    def __init__(self, text):
+        prefix = "" if text.startswith("mavadrc sitl:") else "mavadrc sitl: "
+        sys.stderr.write(prefix + text + "\n")
+        super().__init__(text)
+        self.code = 2  # the status; str(self) is still the text
+
+
 def add_arguments(p):
     p.add_argument("--vehicle", default="crazyflie",
                    help="vehicle name in configs/vehicles or a YAML file (default: crazyflie)")
@@ -122,11 +133,11 @@ def parse_params(items, autopilot):
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise SystemExit(f"--param must be NAME=VALUE (got {item!r})")
+            raise UsageError(f"--param must be NAME=VALUE (got {item!r})")
         try:
             out[name] = parse_param(ap, name, value.strip())
         except ValueError as e:
-            raise SystemExit(f"--param {item}: {e}") from None
+            raise UsageError(f"--param {item}: {e}") from None
     return out
 
 
@@ -164,7 +175,7 @@ def check_ports(args):
     # the whole fleet's plan first: a port taken on this machine is the lesser news
     for k, ports in enumerate(fleet):
         if ports["offboard"][0] in gcs:
-            raise SystemExit(f"mavadrc sitl: instance {args.instance + k} would send its "
+            raise UsageError(f"mavadrc sitl: instance {args.instance + k} would send its "
                              f"offboard link to UDP {ports['offboard'][0]}, the ground-station "
                              f"port: give --offboard-port BASE (vehicle k sends to BASE + k) "
                              f"or --gcs-port")
@@ -189,7 +200,7 @@ def read_link(path):
             raise ConfigError(f"{path}: a link file is a mapping (down, up, blackouts)")
         return link_from_section(Section(data, str(path)))
     except ConfigError as e:
-        raise SystemExit(f"--link: {e}") from None
+        raise UsageError(f"--link: {e}") from None
 
 
 def make_server(args):
@@ -213,17 +224,17 @@ def make_servers(args):
 
     count = getattr(args, "count", 1)
     if count < 1:
-        raise SystemExit(f"--count must be at least 1 (got {count})")
+        raise UsageError(f"--count must be at least 1 (got {count})")
     if count > 1 and args.lockstep:
-        raise SystemExit("mavadrc sitl: --count serves its vehicles in real time only; for "
+        raise UsageError("mavadrc sitl: --count serves its vehicles in real time only; for "
                          "lockstep start one process per vehicle (--instance N)")
     if math.isinf(args.heading):
-        raise SystemExit(f"--heading must be a finite number of degrees (got {args.heading!r})")
+        raise UsageError(f"--heading must be a finite number of degrees (got {args.heading!r})")
     params = parse_params(args.param, args.autopilot)  # before the warm-up: fail fast
     link, link_on, bandwidth = link_from_args(args)
     if args.link:
         if link is not None:
-            raise SystemExit("--link FILE and --link-down/--link-up/--link-blackout: give the "
+            raise UsageError("--link FILE and --link-down/--link-up/--link-blackout: give the "
                              "link model one way")
         link = read_link(args.link)
     try:
@@ -231,21 +242,21 @@ def make_servers(args):
         if len(home) != 3:
             raise ValueError
     except ValueError:
-        raise SystemExit(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
+        raise UsageError(f"--home must be LAT,LON,ALT (got {args.home!r})") from None
     if not math.isfinite(args.height_drift) or abs(args.height_drift) > 0.5:
-        raise SystemExit(f"--height-drift must be -0.5 to 0.5 m/s (got {args.height_drift!r})")
+        raise UsageError(f"--height-drift must be -0.5 to 0.5 m/s (got {args.height_drift!r})")
     if not (math.isfinite(args.ground_climb) and 0.0 <= args.ground_climb <= 2.0):
-        raise SystemExit(f"--ground-climb must be 0 to 2 m/s (got {args.ground_climb!r})")
+        raise UsageError(f"--ground-climb must be 0 to 2 m/s (got {args.ground_climb!r})")
     if not (math.isfinite(args.wander) and 0.0 <= args.wander <= 1.0):
-        raise SystemExit(f"--wander must be 0 to 1 m (got {args.wander!r})")
+        raise UsageError(f"--wander must be 0 to 1 m (got {args.wander!r})")
     if not (math.isfinite(args.wander_corner) and 0.01 <= args.wander_corner <= 5.0):
-        raise SystemExit(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
+        raise UsageError(f"--wander-corner must be 0.01 to 5 Hz (got {args.wander_corner!r})")
     clock_rate = getattr(args, "clock_rate", 1.0)
     lo, hi = CLOCK_RATES
     if not (math.isfinite(clock_rate) and lo <= clock_rate <= hi):
-        raise SystemExit(f"--clock-rate must be {lo:g} to {hi:g} (got {clock_rate!r})")
+        raise UsageError(f"--clock-rate must be {lo:g} to {hi:g} (got {clock_rate!r})")
     if clock_rate != 1.0 and args.lockstep:
-        raise SystemExit("mavadrc sitl: --clock-rate is for real time; in lockstep the "
+        raise UsageError("mavadrc sitl: --clock-rate is for real time; in lockstep the "
                          "setpoints are the clock")
     check_ports(args)
     warm_up(args.vehicle, args.wind, args.attitude_controller)

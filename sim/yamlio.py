@@ -369,10 +369,38 @@ def config_path(name_or_path: str | Path, folder: str) -> Path:
         return name_or_path
     text = str(name_or_path)
     if "/" in text or "\\" in text or text.endswith((".yaml", ".yml")):
-        return Path(text)
+        path = Path(text)
+        if not path.exists():
+            raise ConfigError(f"{text}: no such file{_nearest_file(path, folder)}")
+        return path
     path = CONFIG_DIR / folder / f"{text}.yaml"
     if not path.exists():
         shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
         raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)}"
                           f"{did_you_mean(text, shipped)})")
     return path
+
+
+def _nearest_file(path: Path, folder: str) -> str:
+    """"; did you mean 'X'?" for a config file that does not exist: the same name with the other
+    suffix (.yml for .yaml), the shipped config of that name, or a close name beside it."""
+    stem = path.name.rsplit(".", 1)[0] if path.suffix in (".yaml", ".yml") else path.name
+    for candidate in (path.with_name(stem + ".yaml"), path.with_name(stem + ".yml"),
+                      CONFIG_DIR / folder / f"{stem}.yaml"):
+        if candidate != path and candidate.exists():
+            return f"; did you mean {_shown(candidate)!r}?"
+    here = path.parent if path.parent.is_dir() else None
+    names = [p.name for p in here.glob("*.y*ml")] if here is not None else []
+    near = closest(path.name, names)
+    if near is not None:
+        return f"; did you mean {str(path.with_name(near))!r}?"
+    shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
+    return did_you_mean(stem, shipped)
+
+
+def _shown(path: Path) -> str:
+    """``path`` as the user would type it: relative to the working folder when under it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)

@@ -124,6 +124,37 @@ def test_a_tcp_link_with_nobody_there_is_one_line_naming_its_tries(capsys, tmp_p
         "(3 tries, 1 s apart)")
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["fly", "hover.yml"], "mavadrc fly: hover.yml: no such file; did you mean "
+                           "'configs/missions/hover.yaml'?"),
+    (["fly", "configs/missions/hovr.yaml"], "mavadrc fly: configs/missions/hovr.yaml: no such "
+                                            "file; did you mean 'configs/missions/hover.yaml'?"),
+    (["fly", "hovr"], "did you mean 'hover'?"),
+    (["compare", "thesis.yml"], "mavadrc compare: thesis.yml: no such file; did you mean "
+                                "'configs/experiments/thesis.yaml'?"),
+    (["fly", "hover", "--wind", "moderate_gust.yaml"], "did you mean 'moderate_gusts'?"),
+])
+def test_a_missing_mission_or_experiment_says_the_one_meant_and_exits_2(argv, said, capsys,
+                                                                        monkeypatch):
+    monkeypatch.chdir(ROOT)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and said in err[0], err
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["sitl", "--count", "0"], "mavadrc sitl: --count must be at least 1 (got 0)"),
+    (["sitl", "--param", "FOO"], "mavadrc sitl: --param must be NAME=VALUE (got 'FOO')"),
+    (["sitl", "--wander", "3"], "mavadrc sitl: --wander must be 0 to 1 m (got 3.0)"),
+])
+def test_sitl_refuses_a_bad_option_in_one_line_with_exit_2_as_every_command(argv, said, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(said), err
+
+
 def interrupt_when(args, marker, stream="stderr", within=120.0, path=()):
     """Run ``python -m mavadrc ARGS`` in a session of its own, send Ctrl-C (SIGINT to the whole
     group, as a terminal does) once a line of ``stream`` contains ``marker``; returns (exit
