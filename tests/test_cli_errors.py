@@ -228,6 +228,15 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
     assert "tiny: 2 scenarios x 3 controllers x 1 seed\n" in err  # not "1 seeds"
 
 
+def test_compare_names_the_runs_it_copied_only_when_there_are_some():
+    from mavadrc.study.compare import runs_line
+
+    assert runs_line(8, 8, 4.0) == "8 runs in 4.0 s (2.0 runs/s)"  # no "rest" to speak of
+    assert runs_line(105, 41, 14.0) == ("105 runs in 14.0 s (7.5 runs/s; 41 flown, 2.9/s, the "
+                                        "other 64 copied from a seed-independent run)")
+    assert runs_line(1, 1, 0.0) == "1 run in 0.0 s (- runs/s)"
+
+
 @pytest.mark.slow
 def test_ctrl_c_during_compare_stops_the_workers_in_one_line(tmp_path):
     """The one line and nothing after it, with the pool's race at exit widened so it is hit
