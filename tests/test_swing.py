@@ -102,17 +102,16 @@ def test_the_warning_names_the_kind_of_swing():
 
 
 def _margin_warned():
-    said = ("the delay margin (90 ms, on one lag of that 63 % time) is under 75% of the lag "
-            "identified (204 ms): the mission's gains are fast for this vehicle and a limit "
-            "cycle is likely")
+    said = ("no delay margin on the response identified: the loop is unstable on this "
+            "vehicle's model and a limit cycle is expected")
     spoken = []
     notices = SimpleNamespace(warned_text={"margin": said}, say=spoken.append)
     return notices, said, spoken
 
 
 def test_a_predicted_limit_cycle_not_flown_is_said_so():
-    """ArduCopter SITL: every shipped mission kept 44 % of its lag as margin (warned under 75 %)
-    and swung +-0.3-0.6 deg; the summary must not go on saying "likely" alone."""
+    """A limit cycle predicted and not flown: the summary must not go on saying "expected"
+    alone."""
     flight, said, spoken = _margin_warned()
     warnings = ["another", said]
     calm = attitude_oscillation(T, resonance(0.25, 0, deg=0.2), np.zeros(T.size))
@@ -150,3 +149,15 @@ def test_the_table_prints_the_swing():
     print_table(summary, out)
     line = f"roll/pitch swing +-{osc['amplitude_deg']:.1f} deg at 0.97 Hz, regular (a limit cycle)"
     assert osc["amplitude_deg"] > 25 and line in out.getvalue()
+
+
+def test_the_identified_margin_is_one_figure_with_its_share_of_the_lag():
+    from mavadrc.design.margin import identified_margin_text
+
+    gains = {"input_lag": (0.122, 0.120, 0.05)}
+    little = identified_margin_text(0.020, gains)
+    assert little == ("delay margin 20 ms on the response identified (little: under 75% of its "
+                      "122 ms lag; a vehicle slower than identified by more will oscillate)")
+    plenty = identified_margin_text(0.100, gains)
+    assert "little" not in plenty and plenty.startswith("delay margin 100 ms")
+    assert "expect a limit cycle" in identified_margin_text(0.0, gains)

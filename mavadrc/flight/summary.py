@@ -32,9 +32,8 @@ def late_warning(ages):
 def margin_outcome(notices, warnings, osc):
     """The margin warning (a limit cycle predicted from the delay margin, in ``warnings``)
     with what the flight measured, where it swung no more than
-    :data:`OSCILLATION_WARN_DEG`: on ArduCopter SITL the shipped missions kept 44 % of the
-    lag, under the 75 % warned at, and swung +-0.3-0.6 deg; a warning left saying "likely"
-    would say more than was measured.  (A larger swing has its own warning beside it.)"""
+    :data:`OSCILLATION_WARN_DEG`: a warning left saying "expected" would say more than was
+    measured.  (A larger swing has its own warning beside it.)"""
     said = notices.warned_text.get("margin")
     if said is None or osc is None or said not in warnings or osc["limit_cycle"] is None:
         return

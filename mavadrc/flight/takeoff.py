@@ -106,10 +106,12 @@ class Takeoff:
         p.lifted = self.v.takeover_in_air
         self.yaw_offset = wrap_pi(self.v.yaw - float(p.traj.sample(0.0).yaw))
         self.gate.restart(c.h)
+        # the delay margin is said once: here, or beside the identification that sets the gains
+        # the mission flies (the takeoff's safe gains have plenty)
+        margin = "" if c.identifying() else f"; {margin_text(c.delay_margin)}"
         self.notices.say(f"flying {self.m.name!r} with {c.kind} at {c.rate:g} Hz "
                          f"({p.traj.duration:.1f} s){ident.takeoff_text()}"
-                         f"{prediction_text(c.ctrl)}; "
-                         f"{margin_text(c.delay_margin)}")
+                         f"{prediction_text(c.ctrl)}{margin}")
         self.clock.enter("mission", s)
 
     def waits(self, s, r):
