@@ -2,7 +2,7 @@
 
 :class:`SimVehicle` is the API the tests, the MAVLink server and batch experiments use::
 
-    v = SimVehicle("x500", wind="gusty", seed=3)
+    v = SimVehicle("x500", wind="moderate_gusts", seed=3)
     v.arm()
     v.takeoff(2.0)
     v.step(5.0)                 # advance 5 s of simulated time
