@@ -50,6 +50,28 @@ def test_bench_says_a_peer_is_not_installed_and_how_to_install_it(monkeypatch):
     assert "nan" not in out.getvalue()
 
 
+def test_bench_says_each_part_as_it_starts_on_stderr_and_quiet_says_nothing(monkeypatch,
+                                                                            capsys):
+    """A bench run takes minutes: each part is named as it starts (a plain line off a
+    terminal), never on stdout, where the figures go."""
+    import io
+
+    from mavadrc.study import bench
+
+    monkeypatch.setattr(bench, "bench_parts", lambda *a: [
+        ("the control laws' steps", lambda: {"linear_adrc_step_us": 0.31}),
+        ("the vehicle's physics", lambda: {"physics_step_us": 2.0})])
+    out = io.StringIO()
+    assert bench.main(out=out) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("bench: the control laws' steps: 0/2 parts")
+    assert err[1].startswith("bench: the vehicle's physics: 1/2 parts")
+    assert err[-1].startswith("bench: the vehicle's physics: 2/2 parts")
+    assert "bench:" not in out.getvalue() and "physics_step_us" in out.getvalue()
+    assert bench.main(out=io.StringIO(), progress=False) == 0
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.realtime
 def test_sitl_figures_measure_a_running_vehicle():
     fig = sitl_figures(realtime_seconds=2.0, lockstep_seconds=1.0)

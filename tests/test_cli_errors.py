@@ -228,6 +228,27 @@ def test_compare_says_it_writes_the_report_after_the_last_run(capsys, tmp_path):
     assert "tiny: 2 scenarios x 3 controllers x 1 seed\n" in err  # not "1 seeds"
 
 
+def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_elsewhere():
+    from mavadrc.flight.console import Steps
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Terminal()
+    steps = Steps(4, "run", out=tty, desc="tiny")
+    for _ in range(4):
+        steps.step()
+    text = tty.getvalue()
+    assert "\r" in text and "4/4" in text and "100%" in text and "tiny" in text  # tqdm's bar
+    pipe = io.StringIO()
+    steps = Steps(4, "run", out=pipe, every=1e9)
+    for _ in range(4):
+        steps.step()
+    assert pipe.getvalue() == pipe.getvalue().replace("\r", "")
+    assert pipe.getvalue().splitlines()[-1].startswith("4/4 runs, ")  # the last always said
+
+
 def test_compare_names_the_runs_it_copied_only_when_there_are_some():
     from mavadrc.study.compare import runs_line
 

@@ -8,7 +8,7 @@ def _bench(args):
     from mavadrc.study import bench
 
     return bench.main(as_json=args.json, sitl=not args.no_sitl, compare=not args.no_compare,
-                      compare_seeds=args.compare_seeds)
+                      compare_seeds=args.compare_seeds, progress=not args.quiet)
 
 
 def _sitl(args):
@@ -95,6 +95,8 @@ def build_parser():
                    help="skip the experiment figures (the thesis matrix, ~1 min)")
     b.add_argument("--compare-seeds", type=int, default=10,
                    help="seeds for the thesis-matrix figure (default 10; 100 takes minutes)")
+    b.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress on stderr (the parts measured, as they start)")
     b.set_defaults(func=_bench)
     f = command("fly", help="fly a mission (against the bundled vehicle unless --connect)")
     f.add_argument("mission", help="mission YAML file (or a name in configs/missions)")

@@ -93,6 +93,57 @@ def counted(n, noun):
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
+class Steps:
+    """Progress through ``total`` steps of ``unit`` (runs, evaluations, measurements): a tqdm
+    bar on a terminal (rate and time left), a plain line at most every ``every`` s otherwise
+    (a log or a pipe gets lines, not carriage returns), nothing when not ``enabled``.
+    ``describe(text)`` names the step under way."""
+
+    def __init__(self, total, unit, out=None, enabled=True, every=5.0, desc=None):
+        self.total, self.unit, self.done = total, unit, 0
+        self.out = out if out is not None else sys.stderr
+        self.enabled, self.every, self.desc = enabled, every, desc
+        self.t0 = self._last = time.monotonic()
+        self._bar = None
+        if enabled and self.out.isatty():
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, unit=f" {unit}s", file=self.out, desc=desc,
+                             mininterval=0.2, dynamic_ncols=True, leave=True)
+
+    def describe(self, text):
+        self.desc = text
+        if self._bar is not None:
+            self._bar.set_description_str(text)
+        elif self.enabled:
+            self._line(force=True)
+
+    def step(self, n=1):
+        self.done += n
+        if self._bar is not None:
+            self._bar.update(n)
+            if self.done >= self.total:
+                self.close()
+        elif self.enabled:
+            self._line(force=self.done >= self.total)
+
+    def _line(self, force=False):
+        now = time.monotonic()
+        if not force and now - self._last < self.every:
+            return
+        self._last = now
+        rate = self.done / max(now - self.t0, 1e-9)
+        what = f"{self.desc}: " if self.desc else ""
+        self.out.write(f"{what}{self.done}/{counted(self.total, self.unit)}, "
+                       f"{rate:.1f} {self.unit}s/s\n")
+        self.out.flush()
+
+    def close(self):
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
 class Console:
     """Writes to ``out`` (guarded: :class:`Guarded`; its text goes to ``fallback`` once ``out``
     fails); ``progress=False`` drops the live line (messages still go out)."""

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from mavadrc.control import PD, AttitudeController, HanADRC, LinearADRC, PositionController
+from mavadrc.flight.console import Steps
 from mavadrc.flight.embedded import free_udp_port, udp_sink
 from sim.bench import median_us
 
@@ -524,21 +525,41 @@ def compare_figures(seeds=10, mavlink=True):
     return fig
 
 
-def all_figures(sitl=True, compare=True, compare_seeds=10):
-    fig = control_figures()
+def bench_parts(sitl=True, compare=True, compare_seeds=10):
+    """[(what it measures, the function that measures it)] of a bench run."""
     from sim.bench import physics_figures
-    fig.update(physics_figures())
+
+    parts = [("the control laws' steps", control_figures),
+             ("the vehicle's physics", physics_figures)]
     if sitl:
-        fig.update(sitl_figures())
-        fig.update(fleet_figures())
-        fig.update(fly_figures())
+        parts += [("the bundled vehicle in real time and lockstep", sitl_figures),
+                  ("a fleet of vehicles in one process", fleet_figures),
+                  ("flights over MAVLink", fly_figures)]
     if compare:
-        fig.update(compare_figures(compare_seeds, mavlink=sitl))
+        parts.append((f"compare over {compare_seeds} seeds",
+                      lambda: compare_figures(compare_seeds, mavlink=sitl)))
+    return parts
+
+
+def all_figures(sitl=True, compare=True, compare_seeds=10, progress=None):
+    """Every figure, measured part by part; ``progress``: a :class:`Steps` told each part as
+    it starts (the whole takes minutes)."""
+    fig = {}
+    for name, measure in bench_parts(sitl, compare, compare_seeds):
+        if progress is not None:
+            progress.describe(f"bench: {name}")
+        fig.update(measure())
+        if progress is not None:
+            progress.step()
     return fig
 
 
-def main(as_json=False, out=sys.stdout, sitl=True, compare=True, compare_seeds=10):
-    fig = all_figures(sitl, compare, compare_seeds)
+def main(as_json=False, out=sys.stdout, sitl=True, compare=True, compare_seeds=10,
+         progress=True):
+    steps = Steps(len(bench_parts(sitl, compare, compare_seeds)), "part", out=sys.stderr,
+                  enabled=progress)
+    fig = all_figures(sitl, compare, compare_seeds, steps)
+    steps.close()
     if as_json:
         out.write(json.dumps(fig) + "\n")
         return 0

@@ -16,41 +16,11 @@ import time
 from pathlib import Path
 
 from mavadrc.errors import UsageError
-from mavadrc.flight.console import counted
+from mavadrc.flight.console import Steps, counted
 from mavadrc.study.experiment import load_experiment, run_task
 from mavadrc.study.pool import default_workers, process_pool, stop_pool
 
 RESULTS_VERSION = 1
-
-
-class Progress:
-    """A one-line progress bar on a terminal, a line every few seconds otherwise."""
-
-    def __init__(self, total, out=None, enabled=True):
-        self.total = total
-        self.done = 0
-        self.out = out if out is not None else sys.stderr
-        self.enabled = enabled
-        self.t0 = time.monotonic()
-        self._last = 0.0
-
-    def step(self, n=1):
-        self.done += n
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        tty = self.out.isatty()
-        if self.done < self.total and now - self._last < (0.2 if tty else 5.0):
-            return
-        self._last = now
-        k = self.done / self.total if self.total else 1.0
-        bar = "#" * int(30 * k) + "-" * (30 - int(30 * k))
-        rate = self.done / max(now - self.t0, 1e-9)
-        line = f"[{bar}] {self.done}/{self.total} runs, {rate:.1f} runs/s"
-        self.out.write(("\r\033[K" + line) if tty else line + "\n")
-        if tty and self.done >= self.total:
-            self.out.write("\n")
-        self.out.flush()
 
 
 def _warm_up(exp):
@@ -94,7 +64,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
     flown = [r for r in runs if r not in same]
     tasks = [(exp.source, exp.text, i, j, s, via, s == keep_logs_seed,
               str(Path(out_dir or ".") / "flights")) for i, j, s in flown]
-    bar = Progress(len(runs), out=stream, enabled=progress)
+    bar = Steps(len(runs), "run", out=stream, enabled=progress)
     repeats = collections.Counter(same.values())  # flown run -> how many records copy it
     ticks = [1 + repeats[r] for r in flown]  # progress: a flown run and its copies
     t0 = time.perf_counter()
