@@ -287,6 +287,22 @@ def test_ctrl_c_during_tune_ends_in_one_line_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+def test_a_long_wait_is_never_silent_and_a_short_one_says_nothing():
+    from mavadrc.flight.console import ticking
+
+    said = []
+    with ticking(said.append, "still compiling", every=0.05):
+        time.sleep(0.18)
+    n = len(said)
+    assert 2 <= n <= 4 and all(s.startswith("still compiling (") and s.endswith(" s)")
+                               for s in said), said
+    time.sleep(0.12)
+    assert len(said) == n  # nothing after the wait ended
+    with ticking(said.append, "quick", every=5.0):
+        pass
+    assert len(said) == n
+
+
 def test_a_compile_is_announced_only_when_numba_has_not_cached_the_kernel(tmp_path, monkeypatch):
     from mavadrc.control.jit import needs_compiling
 

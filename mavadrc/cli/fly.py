@@ -5,7 +5,7 @@ import time
 
 from mavadrc.design.identify import needs_design_lag
 from mavadrc.errors import FlightError, LinkError, UsageError
-from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word
+from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word, ticking
 from mavadrc.flight.fly import Interrupted, fly, interrupt_status, interrupted
 from mavadrc.flight.summary import print_table
 from mavadrc.mission.config import load_mission
@@ -126,7 +126,9 @@ def found_design_lag(mission, kind=None):
     from mavadrc.fast.identify import flight_design_lag
 
     t0 = time.perf_counter()
-    lag = flight_design_lag(mission, kind)
+    with ticking(print, "finding the lag the mission's gains were chosen for: its vehicle file "
+                 "flown in process, the kernels compiling on a first run"):
+        lag = flight_design_lag(mission, kind)
     took = time.perf_counter() - t0
     if lag is not None and took > 2.0:
         print(f"the lag the mission's gains were chosen for: {lag[0]:.3f} s horizontally, its "

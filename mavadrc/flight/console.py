@@ -10,6 +10,7 @@ failed text and everything after it goes to the ``fallback`` (the flight's compa
 the flight goes on as if nothing had happened.
 """
 
+import contextlib
 import os
 import signal
 import sys
@@ -91,6 +92,26 @@ def guarded(out, fallback=None):
 def counted(n, noun):
     """``n`` and ``noun``, plural unless n is 1: '1 seed', '3 seeds'."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+@contextlib.contextmanager
+def ticking(say, what, every=5.0):
+    """No silent wait: while the body runs (a compile, a fit), ``say(f"{what} ({n} s)")``
+    every ``every`` s from a thread of its own; nothing if it ends sooner."""
+    done = threading.Event()
+    t0 = time.monotonic()
+
+    def tick():
+        while not done.wait(every):
+            say(f"{what} ({time.monotonic() - t0:.0f} s)")
+
+    ticker = threading.Thread(target=tick, name="ticking", daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        ticker.join()
 
 
 class Steps:

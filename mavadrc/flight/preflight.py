@@ -5,11 +5,13 @@ its parameters, the streams (each request confirmed).  Measure: idle setpoints s
 achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rate`).
 """
 
+import contextlib
 import time
 
 from mavadrc.design.fitworker import FitWorker
 from mavadrc.design.identify import load_fitting
 from mavadrc.errors import FlightError, LinkError
+from mavadrc.flight.console import ticking
 from mavadrc.flight.rangefinder import RANGE_HZ
 from mavadrc.flight.state import vehicle_mode
 from mavadrc.flight.truth import TRUTH_HZ, TruthTrack
@@ -61,11 +63,14 @@ class Preflight:
         from mavadrc.control.jit import needs_compiling
         from mavadrc.control.position import position_update
 
-        if needs_compiling(position_update):
+        compiling = needs_compiling(position_update)
+        if compiling:
             say("compiling the controller's kernels (the first flight after an install or "
                 "an update; numba caches them: later flights start at once)")
         c = self.choice
-        c.make(c.hover if c.hover is not None else 0.5)
+        with ticking(say, "still compiling the controller's kernels") if compiling \
+                else contextlib.nullcontext():
+            c.make(c.hover if c.hover is not None else 0.5)
         if c.identifying():
             load_fitting()  # here too: where the fits' process cannot start, they run here
             if not self.lockstep and self.ident.fitter is None:

@@ -8,6 +8,7 @@ in one folder: ``results.json`` (one record per run), ``results.csv`` (the same,
 """
 
 import collections
+import contextlib
 import json
 import math
 import os
@@ -16,7 +17,7 @@ import time
 from pathlib import Path
 
 from mavadrc.errors import UsageError
-from mavadrc.flight.console import Steps, counted
+from mavadrc.flight.console import Steps, counted, ticking
 from mavadrc.study.experiment import load_experiment, run_task
 from mavadrc.study.pool import default_workers, process_pool, stop_pool
 
@@ -84,11 +85,19 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
             from mavadrc.control.jit import needs_compiling
             from mavadrc.fast.inprocess import closed_loop
 
-            if needs_compiling(closed_loop):
+            compiling = needs_compiling(closed_loop)
+            if compiling:
                 stream.write("compiling the simulation and controller kernels (the first run "
                              "after an install or an update; numba caches them)\n")
                 stream.flush()
-            _warm_up(exp)
+
+            def say(text):
+                stream.write(text + "\n")
+                stream.flush()
+
+            with ticking(say, "still compiling the kernels") if compiling \
+                    else contextlib.nullcontext():
+                _warm_up(exp)
         n = default_workers(workers)
         if via == "mavlink":
             n = 1  # each run already runs two processes (companion + vehicle)
