@@ -73,6 +73,19 @@ def test_bench_says_each_part_as_it_starts_on_stderr_and_quiet_says_nothing(monk
 
 
 @pytest.mark.realtime
+def test_the_shipped_fleet_command_is_measured_with_a_client_asking_100_hz():
+    """``mavadrc sitl --count 2`` as a user starts it, each vehicle asked for 100 Hz positions
+    by the bench's client: both deliver them (a few percent either side over 2 s of the
+    wall clock) on their own clocks, which keep the wall's."""
+    from mavadrc.study.bench import count_as_shipped
+
+    r = count_as_shipped(2, seconds=2.0)
+    assert 90.0 < r["lpn_hz_min"] <= r["lpn_hz_median"] < 110.0, r
+    assert 0.95 < r["x_realtime"] < 1.05, r
+    assert 0.0 < r["cpu_pct_of_core"] < 100.0 and r["client_cpu_pct_of_core"] > 0.0, r
+
+
+@pytest.mark.realtime
 def test_sitl_figures_measure_a_running_vehicle():
     fig = sitl_figures(realtime_seconds=2.0, lockstep_seconds=1.0)
     assert set(fig) == {"sitl_realtime_clock_error_pct", "sitl_realtime_cpu_pct_of_core",

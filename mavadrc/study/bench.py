@@ -371,6 +371,151 @@ def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300)
     return fig
 
 
+def _mavlink_frames(data):
+    """(message id, payload) of each MAVLink 1 or 2 frame in a datagram (no checksum check:
+    the bench counts what a loopback link delivers)."""
+    i = 0
+    while i + 8 <= len(data):
+        if data[i] == 0xFD:
+            n, signed = data[i + 1], data[i + 2] & 1
+            msgid = data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16
+            yield msgid, data[i + 10:i + 10 + n]
+            i += 12 + n + 13 * signed
+        elif data[i] == 0xFE:
+            n = data[i + 1]
+            yield data[i + 5], data[i + 6:i + 6 + n]
+            i += 8 + n
+        else:
+            return
+
+
+def _fleet_ports(n, tries=20):
+    """``n`` UDP sockets bound to consecutive loopback ports (BASE + k): where the vehicles of
+    ``mavadrc sitl --count n --offboard-port BASE`` send."""
+    import random
+    import socket
+    for _ in range(tries):
+        base = random.randrange(20000, 60000 - n)
+        socks = []
+        try:
+            for k in range(n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+                s.bind(("127.0.0.1", base + k))
+                s.setblocking(False)
+            return base, socks
+        except OSError:
+            for s in socks:
+                s.close()
+    raise RuntimeError(f"no {n} consecutive free UDP ports")
+
+
+def count_as_shipped(n, seconds=5.0, rate_hz=100.0, start_timeout=180.0):
+    """The command a user types, ``mavadrc sitl --count n --offboard-port BASE`` (the serving
+    loop, physics and streams as shipped; only the ports chosen: BASE free, the ground-station
+    link to a port nobody reads, the local ports any free ones), with a client in this process
+    that asks each vehicle for LOCAL_POSITION_NED at ``rate_hz`` (SET_MESSAGE_INTERVAL), as a
+    companion per vehicle would, and counts what arrives over ``seconds``.  Returns {"lpn_hz_min",
+    "lpn_hz_median": per vehicle; "x_realtime": the slowest vehicle's clock (time_boot_ms)
+    against the wall; "cpu_pct_of_core": the server's; "client_cpu_pct_of_core"}."""
+    import os
+    import selectors
+    import statistics
+    import struct
+    import subprocess
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import common as mavlink
+
+    base, socks = _fleet_ports(n)
+    sink = udp_sink()
+    proc = subprocess.Popen([sys.executable, "-m", "sim", "--count", str(n), "--offboard-port",
+                             str(base), "--gcs-port", str(sink.getsockname()[1]),
+                             "--bind-offboard", "0", "--bind-gcs", "0"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sel = selectors.DefaultSelector()
+    for k, s in enumerate(socks):
+        sel.register(s, selectors.EVENT_READ, k)
+    enc = mavlink.MAVLink(None, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_ONBOARD_COMPUTER)
+    lpn = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+    counts, first, last = [0] * n, [None] * n, [None] * n
+    peers = [None] * n
+
+    def drain(measuring, until):
+        while time.monotonic() < until:
+            for key, _ in sel.select(0.05):
+                k, s = key.data, key.fileobj
+                while True:
+                    try:
+                        data, addr = s.recvfrom(65536)
+                    except BlockingIOError:
+                        break
+                    if peers[k] is None:
+                        peers[k] = addr
+                        ask = mavlink.MAVLink_command_long_message(
+                            k + 1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, lpn,
+                            1e6 / rate_hz, 0, 0, 0, 0, 0)
+                        s.sendto(ask.pack(enc), addr)
+                    if not measuring:
+                        continue
+                    for msgid, payload in _mavlink_frames(data):
+                        if msgid == lpn:
+                            # MAVLink 2 cuts a payload's trailing zero bytes
+                            boot = struct.unpack_from("<I", bytes(payload[:4]).ljust(4, b"\0"))[0]
+                            counts[k] += 1
+                            if first[k] is None:
+                                first[k] = (boot, time.monotonic())
+                            last[k] = (boot, time.monotonic())
+            if not measuring and all(p is not None for p in peers):
+                return
+
+    try:
+        drain(False, time.monotonic() + start_timeout)
+        if not all(p is not None for p in peers):
+            raise RuntimeError(f"mavadrc sitl --count {n}: {peers.count(None)} vehicles silent "
+                               f"after {start_timeout:g} s")
+        drain(False, time.monotonic() + 2.0)  # the streams at the rate asked
+        cpu0, own0, wall0 = _cpu_seconds(proc.pid), time.process_time(), time.monotonic()
+        drain(True, wall0 + seconds)
+        cpu1, own1, wall1 = _cpu_seconds(proc.pid), time.process_time(), time.monotonic()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        for s in socks:
+            s.close()
+        sink.close()
+    wall = wall1 - wall0
+    hz = [c / wall for c in counts]
+    speed = [((b1 - b0) / 1e3) / (w1 - w0) for (b0, w0), (b1, w1) in zip(first, last)
+             if w1 > w0] if all(f is not None for f in first) else [0.0]
+    return {"lpn_hz_min": min(hz), "lpn_hz_median": statistics.median(hz),
+            "x_realtime": min(speed), "cpu_pct_of_core": (cpu1 - cpu0) / wall * 100.0,
+            "client_cpu_pct_of_core": (own1 - own0) / wall * 100.0}
+
+
+def shipped_fleet_figures(counts=(1, 10, 30, 60, 100), seconds=5.0):
+    """:func:`count_as_shipped` for each N of ``counts`` (stopping after the first that loses
+    real time), and ``sitl_count_realtime_max_n``: the largest N whose every vehicle sent at
+    least 95 of the 100 positions a second asked, its clock within 1 % of the wall clock, on
+    less than one core."""
+    fig, best = {}, None
+    for n in counts:
+        r = count_as_shipped(n, seconds)
+        for key, value in r.items():
+            fig[f"sitl_count_{n}_{key}"] = value
+        holds = r["lpn_hz_min"] >= 95.0 and r["x_realtime"] >= 0.99 and \
+            r["cpu_pct_of_core"] < 100.0
+        if not holds:
+            break
+        best = n
+    fig["sitl_count_realtime_max_n"] = float(best or 0)
+    return fig
+
+
 def _lockstep_hover(mavutil, port, seconds):
     """A 100 Hz LADRC position loop over pymavlink against a lockstep vehicle; x real time."""
     M = mavutil.mavlink
@@ -534,6 +679,8 @@ def bench_parts(sitl=True, compare=True, compare_seeds=10):
     if sitl:
         parts += [("the bundled vehicle in real time and lockstep", sitl_figures),
                   ("a fleet of vehicles in one process", fleet_figures),
+                  ("mavadrc sitl --count N as shipped, positions asked at 100 Hz",
+                   shipped_fleet_figures),
                   ("flights over MAVLink", fly_figures)]
     if compare:
         parts.append((f"compare over {compare_seeds} seeds",
