@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink loads a dialect: speak MAVLink 2
 
@@ -410,3 +411,237 @@ def test_a_record_with_truth_draws_the_true_path_and_error_beside_the_estimates(
     assert np.allclose(alt.get_ydata(), -0.1, atol=1e-6)  # altitude error: 0.1 m low
     norm = [ln for ln in axes[3].get_lines() if ln.get_color() == figures._TRUTH_COLOR][0]
     assert np.allclose(norm.get_ydata(), np.linalg.norm(off), atol=1e-6)
+
+
+# ------------------------------------------------------------------------- a flight's own record
+
+#: a short flight (lockstep, ~6 s of wall time): a takeoff, a lap of a 1 m circle in a breeze
+#: with a drag model told, the landing; the error figures after 4 s and over the whole mission
+SHORT_MISSION = """\
+name: short circle
+vehicle: crazyflie
+controller:
+  type: ladrc
+  rate_hz: 100
+  drag: [0.3, 0.3, 0.2]
+trajectory:
+  - takeoff: {altitude: 1.0, speed: 0.5}
+  - circle: {radius: 1.0, speed: 1.5, laps: 1}
+  - land: {speed: 0.5}
+transit_speed: 2.0
+wind: breeze_1ms
+sim: {seed: 1}
+logging: {settle_s: 4}
+"""
+
+_UNITS = {"m": 1.0, "mm": 1e-3}
+
+
+def _rms_max(line):
+    """(rms, max) in metres of a line 'window: RMS x u, max y u'."""
+    m = re.search(r"RMS (\S+) (mm|m), max (\S+) (mm|m)$", line)
+    assert m, line
+    return float(m[1]) * _UNITS[m[2]], float(m[3]) * _UNITS[m[4]]
+
+
+def _span_floor(label):
+    return next((f for unit, f in figures.UNIT_FLOORS.items() if label.endswith(unit)), None)
+
+
+def _check_floors(fig):
+    """Every labelled axis of ``fig`` spans at least its unit's floor."""
+    for ax in fig.axes:
+        pairs = [(ax.get_ylabel(), ax.get_ylim()), (ax.get_xlabel(), ax.get_xlim())]
+        if hasattr(ax, "get_zlim"):
+            pairs.append((ax.get_zlabel(), ax.get_zlim()))
+        for label, (lo, hi) in pairs:
+            floor = _span_floor(label)
+            if floor is not None:
+                assert hi - lo >= floor * (1 - 1e-9), (label, lo, hi)
+
+
+def _visible(line, renderer):
+    """The part of ``line``'s bounding box inside its axes (None: none of it)."""
+    from matplotlib.transforms import Bbox
+
+    if not np.asarray(line.get_xdata()).size:
+        return None
+    return Bbox.intersection(line.get_window_extent(renderer), line.axes.bbox)
+
+
+def _check_legends_off_the_data(fig):
+    """No legend in any axes; the figure's legends clear of every axes (and so of its lines)."""
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        assert ax.get_legend() is None, ax.get_ylabel()
+    for legend in fig.legends:
+        box = legend.get_window_extent(renderer)
+        for ax in fig.axes:
+            assert not _overlap(box, ax.bbox), (ax.get_ylabel(), box, ax.bbox)
+            for ln in figures._data_lines(ax) if ax.name != "3d" else []:
+                seen = _visible(ln, renderer)
+                assert seen is None or not _overlap(box, seen)
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory):
+    from mavadrc.cli.main import main as cli
+
+    folder = tmp_path_factory.mktemp("lockstep")
+    (folder / "short.yaml").write_text(SHORT_MISSION)
+    assert cli(["fly", str(folder / "short.yaml"), "--lockstep", "--no-figures", "-q", "--out",
+                str(folder / "runs")]) == 0
+    (rec,) = (folder / "runs").iterdir()
+    return rec
+
+
+@pytest.mark.slow
+def test_a_lockstep_flight_s_figures_print_its_summary_and_keep_off_the_data(
+        flown, drawn, tmp_path, recwarn, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="matplotlib")
+    summary = json.loads((flown / "summary.json").read_text())
+    table = record.read_table(flown / "controller.csv")
+    assert summary["settle_s"] == 4.0 and summary["after_settle"]["rms_error_m"] is not None
+    paths = figures.plot_record(flown, out=tmp_path)
+    assert sorted(p.name for p in paths) == ["commands.png", "disturbance.png", "error.png",
+                                             "link.png", "path3d.png"]
+    # nothing warned, nothing logged by matplotlib: none of it would have reached the console
+    assert figures.caught == []
+    assert not [str(w.message) for w in recwarn.list]
+    assert not [r.getMessage() for r in caplog.records if r.name.startswith("matplotlib")]
+    for fig in drawn.values():
+        fig.canvas.draw()
+        _check_floors(fig)
+        _check_legends_off_the_data(fig)
+
+    # error.png: summary.json's figures, each saying its window, on every panel
+    axes = drawn["error"].axes
+    for k, ax in enumerate(axes):
+        (box,) = [x for x in ax.texts if "RMS" in x.get_text()]
+        after, whole = box.get_text().split("\n")
+        assert after.startswith("after 4 s (settle_s): ")
+        assert whole.startswith("whole mission (scored steps): ")
+        for line, fig in ((after, summary["after_settle"]), (whole, summary)):
+            want = ((fig["rms_error_m"], fig["max_error_m"]) if k == 3 else
+                    (fig["rms_error_xyz_m"][k], fig["max_error_xyz_m"][k]))
+            assert _rms_max(line) == pytest.approx(want, rel=5e-3), (k, line)
+        # the box over no curve
+        renderer = drawn["error"].canvas.get_renderer()
+        for ln in figures._data_lines(ax):
+            seen = _visible(ln, renderer)
+            assert seen is None or not _overlap(box.get_window_extent(renderer), seen)
+        # settle_s marked; the touchdown, past the last scored step, hatched as not scored
+        marks = [ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_gid() == figures.MARK
+                 and ln.get_linestyle() == ":"]
+        assert marks == [4.0]
+        hatched = [p for p in ax.patches if p.get_hatch()]
+        assert len(hatched) == 1
+        assert hatched[0].get_x() == pytest.approx(summary["duration_s"])
+    assert any("not scored in summary.json (touchdown)" in x.get_text()
+               for x in drawn["error"].legends[0].get_texts())
+
+    # disturbance.png: the truth less the drag the observers model, which z3 leaves out
+    t = table["t"]
+    axes = drawn["disturbance"].axes
+    for k, a in enumerate(record.AXES):
+        (truth,) = [ln for ln in axes[k].get_lines() if "less the drag" in ln.get_label()]
+        c = table[f"drag_{a}"] if k < 2 else np.full(t.size, 0.2)
+        np.testing.assert_allclose(truth.get_ydata(),
+                                   table[f"true_dist_{a}"] + c * table[f"ref_v{a}"], atol=1e-9)
+    assert "linear drag along the reference" in axes[0].get_title(loc="left")
+    # the y axes from the flight in the air: the touchdown's push clipped, and said so
+    air = (t >= summary["liftoff_s"]) & (t <= summary["duration_s"])
+    for k, a in enumerate(record.AXES):
+        lo, hi = axes[k].get_ylim()
+        z3 = table[f"z3_{a}"]
+        assert lo <= z3[air].min() and z3[air].max() <= hi
+        if z3.min() < lo or z3.max() > hi:
+            assert "clipped: z3" in (axes[k].get_title(loc="right")
+                                     + axes[0].get_title(loc="left"))
+    assert table["z3_z"].min() < axes[2].get_ylim()[0]  # the ground's push at the touchdown
+
+    # path3d.png: the start a ring and the end a square, both drawn; the legend below
+    top = drawn["path3d"].axes[1]
+    start, end = (next(ln for ln in top.get_lines() if ln.get_label() == name)
+                  for name in ("start", "end"))
+    assert start.get_markersize() > end.get_markersize() and start.get_markerfacecolor() == "none"
+    # link.png: lockstep ages are said to be periods
+    assert "Lockstep" in drawn["link"].axes[1].get_title(loc="left")
+
+
+def test_a_hover_s_path_is_drawn_at_10_cm_with_its_start_and_end_both_seen(drawn, tmp_path,
+                                                                         recwarn, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="matplotlib")
+    t = np.arange(0.0, 10.0, 0.02)
+    pos = np.column_stack([4e-4 * np.sin(t), 3e-4 * np.cos(t), -np.clip(t, 0, 1)]) + [2.0, -1.0,
+                                                                                     0.0]
+    pos[-1] = pos[0]  # landed where it took off
+    figures.draw_path(tmp_path, pos, pos + 1e-4)
+    fig = drawn["path3d"]
+    fig.canvas.draw()
+    assert not recwarn.list and not caplog.records  # "Ignoring fixed y limits ..." was logged
+    ax3, top = fig.axes
+    (x0, x1), (y0, y1) = top.get_xlim(), top.get_ylim()
+    assert x1 - x0 >= figures.MIN_PATH_SPAN_M and y1 - y0 >= figures.MIN_PATH_SPAN_M
+    assert 0.5 * (x0 + x1) == pytest.approx(-1.0, abs=1e-3)  # centred on the path (east)
+    assert 0.5 * (y0 + y1) == pytest.approx(2.0, abs=1e-3)
+    assert x1 - x0 == pytest.approx(y1 - y0)  # one scale
+    lo, hi = ax3.get_xlim()
+    assert hi - lo >= figures.MIN_PATH_SPAN_M
+    for ax in (ax3, top):
+        start, end = (next(ln for ln in ax.get_lines() if ln.get_label() == name)
+                      for name in ("start", "end"))
+        # on the same spot, the end's square inside the start's ring: both show
+        assert start.get_markersize() >= 2 * end.get_markersize()
+        assert start.get_markerfacecolor() == "none"
+    _check_legends_off_the_data(fig)
+    _check_floors(fig)
+
+
+def test_no_axis_is_drawn_on_floating_point_noise(drawn, tmp_path):
+    t = np.arange(0.0, 20.0, 0.01)
+    yaw = 1e-8 * np.sin(3 * t)  # an x500's yaw setpoint: 0 but for rounding
+    q = np.column_stack([np.cos(yaw / 2), 0 * t, 0 * t, np.sin(yaw / 2)])
+    tiny = np.full((t.size, 3), 1e-12)
+    figures.draw_commands(tmp_path, t, q, np.full(t.size, 0.5), (t, tiny, tiny))
+    figures.draw_link(tmp_path, t, np.full(t.size, 0.01), np.full(t.size, 2e-9))
+    for name in ("commands", "link"):
+        drawn[name].canvas.draw()
+        _check_floors(drawn[name])
+    (yaw_ax,) = [ax for ax in drawn["commands"].axes if ax.get_ylabel() == "yaw [deg]"]
+    lo, hi = yaw_ax.get_ylim()
+    assert hi - lo >= figures.MIN_SPAN_DEG
+
+
+def test_ages_below_zero_are_called_the_clock_offset_s_error(drawn, tmp_path):
+    t = np.arange(0.0, 10.0, 0.01)
+    age = np.where(np.arange(t.size) % 4 == 0, 0.0012, -0.0009)
+    summary = {"config": {"lockstep": False}, "link": {"rtt_ms_median": 0.4},
+               "command_line": ["fly", "hover.yaml"]}
+    figures.draw_link(tmp_path, t, np.full(t.size, 0.01), age,
+                      age_note=figures._age_note(summary))
+    note = drawn["link"].axes[1].get_title(loc="left").replace("\n", " ")
+    assert "half a round trip (0.20 ms here)" in note
+    assert "750 of 1000 below 0 (down to -0.90 ms): the clock offset's error" in note
+
+
+def test_the_windows_summary_json_leaves_out(tmp_path):
+    """The identification's doublets (its segment but the hold before the hand-over) and what
+    follows the last scored step are not scored; the after-settle figures start at settle_s."""
+    t = np.arange(0.0, 60.0, 0.01)
+    spans = [(0.0, 4.0, "takeoff"), (4.0, 28.0, "identify"), (28.0, 55.0, "figure_eight"),
+             (55.0, 59.0, "land"), (59.0, 59.99, "touchdown")]
+    summary = {"rms_error_m": 0.1, "duration_s": 58.7, "settle_s": 30.0}
+    score = figures.scoring(t, spans, summary)
+    assert score["settle_s"] == 30.0
+    assert score["unscored"] == [(4.0, 25.0, "identification"),
+                                 (58.7, pytest.approx(59.99), "touchdown")]
+    assert figures.scoring(t, spans, {"controller": "pd"}) is None  # no figures to print
+    lines = figures.score_lines({**summary, "after_settle": None, "rms_error_xyz_m": [0.05] * 3,
+                                 "max_error_xyz_m": [0.2] * 3, "max_error_m": 0.3}, 0)
+    assert lines == ["after 30 s (settle_s): not reached",
+                     "whole mission (scored steps): RMS 0.0500 m, max 0.200 m"]
