@@ -561,16 +561,22 @@ def _limits(series, window):
     return lo - pad, hi + pad
 
 
-def _clipped(series, names, lo, hi, unit="m/s$^2$"):
+def _clipped(series, names, lo, hi, window=None, unit="m/s$^2$"):
     """What the y limits (lo, hi) leave out of ``series``: '<name> to <v> <unit> at <t> s', the
-    sample furthest out of each series with any out."""
+    sample furthest out of each series with any out, and where it was against ``window`` (the
+    span in the air: before it the vehicle stood on the ground, after it the ground met it)."""
     parts = []
     for (tt, vv), name in zip(series, names):
         tt, vv = np.asarray(tt, dtype=float), np.asarray(vv, dtype=float)
         out = np.isfinite(vv) & ((vv < lo) | (vv > hi))
         if out.any():
             i = np.flatnonzero(out)[np.argmax(np.abs(vv[out] - 0.5 * (lo + hi)))]
-            parts.append(f"{name} to {vv[i]:.2g} {unit} at {tt[i]:.1f} s")
+            where = ""
+            if window is not None and tt[i] < window[0]:
+                where = ", before lift-off"
+            elif window is not None and tt[i] > window[1]:
+                where = ", after the last scored step"
+            parts.append(f"{name} to {vv[i]:.2g} {unit} at {tt[i]:.1f} s{where}")
     return parts
 
 
@@ -620,7 +626,7 @@ def draw_disturbance(out, est=None, truth=None, note=None, title="Total disturba
         lim = _limits(series, None if window is None else window[:2]) if series else None
         if lim is not None and lim[1] > lim[0]:
             ax.set_ylim(*lim)
-            gone = _clipped(series, names, *lim)
+            gone = _clipped(series, names, *lim, window=None if window is None else window[:2])
             if gone:
                 ax.set_title("clipped: " + "; ".join(gone), loc="right", fontsize=7.5,
                              color="0.3")
