@@ -98,6 +98,7 @@ class SitlServer:
         self._thread = None
         self._last_hb_wall = 0.0
         self._last_step_wall = 0.0  # lockstep: wall time the clock last advanced
+        self._stepped_wall = time.monotonic()  # wall time of the last step's sending
         self._last_hb_t = -10**9
         self.links = []
         ports = default_ports(self.instance, offboard_port, gcs_port, bind_offboard, bind_gcs)
@@ -126,7 +127,7 @@ class SitlServer:
             "SET_MODE": commands.on_set_mode,
             "SET_ATTITUDE_TARGET": self._on_attitude_target,
             "SET_POSITION_TARGET_LOCAL_NED": self.offboard.on_position_target,
-            "TIMESYNC": Timesync(vehicle).on_timesync,
+            "TIMESYNC": Timesync(self.clock_now).on_timesync,
             "PARAM_REQUEST_LIST": self.parameters.on_request_list,
             "PARAM_REQUEST_READ": self.parameters.on_request_read,
             "PARAM_SET": self.parameters.on_set,
@@ -346,7 +347,19 @@ class SitlServer:
         self.autopilot.after_step(dt)
         self._send_due()
 
+    def clock_now(self):
+        """The vehicle's clock now (s): in real time its time at the last step plus the wall
+        time since, at the clock's rate, up to one step (a sample is stamped at its step, so
+        a TIMESYNC answered between steps with the step's time read the clock up to a step
+        late, and every sample's age as much too short: negative ages); in lockstep the
+        clock only moves with the steps."""
+        if self.lockstep:
+            return self.vehicle.time
+        since = (time.monotonic() - self._stepped_wall) * self.clock_rate
+        return self.vehicle.time + min(max(since, 0.0), self.tick)
+
     def _send_due(self):
+        self._stepped_wall = time.monotonic()
         t = self.streams.time_us()
         if t - self._last_hb_t >= 1_000_000:
             self._heartbeat_now()

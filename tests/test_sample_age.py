@@ -413,6 +413,9 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     # truly that old when answered; the warning for them is tested with a stalled loop.)
     ages = read_table(folder / "controller.csv")["sample_age"]
     assert ages.size > 300 and np.percentile(ages, 90) < 0.015
+    # and never much under zero: the vehicle answers TIMESYNC with its clock between steps
+    # (answered with the last step's time, 73 % of a hover's ages read below zero, to -1.7 ms)
+    assert np.percentile(ages, 1) > -0.0005, np.percentile(ages, [0, 1, 50])
     # the fast path has one clock, and in lockstep the setpoints are the clock: both refuse the
     # key rather than ignore it
     from mavadrc.flight.fly import UsageError
@@ -489,3 +492,35 @@ def test_the_companion_asks_the_time_four_times_a_second_until_the_clock_is_fitt
     assert np.allclose(gaps[:4], 0.25) and np.allclose(gaps[6:], 1.0)
     gaps = run(answer=False)
     assert np.allclose(gaps[:15], 0.25) and np.allclose(gaps[15:], 1.0)
+
+
+def test_the_vehicle_answers_timesync_with_its_clock_between_steps():
+    """A sample is stamped at its physics step; a TIMESYNC that comes between steps is answered
+    with the clock then, not the last step's time (which read the clock up to a step late, and
+    every age as much too short: ages below zero).  In lockstep the clock moves only with the
+    steps."""
+    from sim.server import SitlServer
+    from sim.vehicle import SimVehicle
+    from sitl_helpers import free_udp_port
+
+    srv = SitlServer(SimVehicle("crazyflie"), "px4", 0, bind_offboard=0, bind_gcs=0,
+                     offboard_port=free_udp_port(), gcs_port=free_udp_port())
+    try:
+        for _ in range(5):
+            srv.advance(srv.tick)
+        t = srv.vehicle.time
+        assert t <= srv.clock_now() <= t + srv.tick
+        srv._stepped_wall = time.monotonic() - 0.5 * srv.tick  # as if stepped 1 ms ago
+        assert t + 0.05 * srv.tick < srv.clock_now() < t + srv.tick  # between the steps
+        time.sleep(3 * srv.tick)
+        assert srv.clock_now() == pytest.approx(t + srv.tick)  # never past the next step
+    finally:
+        srv.stop()
+    lock = SitlServer(SimVehicle("crazyflie"), "px4", 0, lockstep=True, bind_offboard=0,
+                      bind_gcs=0, offboard_port=free_udp_port(), gcs_port=free_udp_port())
+    try:
+        lock.advance(0.01)
+        time.sleep(0.005)
+        assert lock.clock_now() == lock.vehicle.time
+    finally:
+        lock.stop()
