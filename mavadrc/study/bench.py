@@ -497,7 +497,7 @@ def count_as_shipped(n, seconds=5.0, rate_hz=100.0, start_timeout=180.0):
             "client_cpu_pct_of_core": (own1 - own0) / wall * 100.0}
 
 
-def shipped_fleet_figures(counts=(1, 10, 30, 60, 100), seconds=5.0):
+def shipped_fleet_figures(counts=(1, 10, 20, 30, 40, 60, 100), seconds=5.0):
     """:func:`count_as_shipped` for each N of ``counts`` (stopping after the first that loses
     real time), and ``sitl_count_realtime_max_n``: the largest N whose every vehicle sent at
     least 95 of the 100 positions a second asked, its clock within 1 % of the wall clock, on
