@@ -152,7 +152,9 @@ def build_parser():
                    help="run on a Dask distributed cluster at this address (tcp://HOST:PORT)")
     c.add_argument("--via", choices=("inprocess", "mavlink"), default="inprocess",
                    help="inprocess (default): the fast path on the vehicle's kernels; mavlink: "
-                        "each run flown over MAVLink against the bundled vehicle in lockstep")
+                        "each run flown over MAVLink against the bundled vehicle in lockstep "
+                        "(its report has tables, no figures: they are drawn from the fast "
+                        "path's logs)")
     c.add_argument("--rerun-identical", action="store_true",
                    help="fly every seed even of scenarios the seed does not change (no "
                         "turbulence, no sensor noise); by default those fly once per controller "
