@@ -413,9 +413,11 @@ def test_the_bundled_vehicle_can_run_its_clock_slow_and_the_companion_reads_true
     # truly that old when answered; the warning for them is tested with a stalled loop.)
     ages = read_table(folder / "controller.csv")["sample_age"]
     assert ages.size > 300 and np.percentile(ages, 90) < 0.015
-    # and never much under zero: the vehicle answers TIMESYNC with its clock between steps
-    # (answered with the last step's time, 73 % of a hover's ages read below zero, to -1.7 ms)
-    assert np.percentile(ages, 1) > -0.0005, np.percentile(ages, [0, 1, 50])
+    # and not read short: the vehicle answers TIMESYNC with its clock between steps (answered
+    # with the last step's time, a quiet hover's median age read -0.21 ms and 73 % of its ages
+    # below zero; now +0.39 ms).  The spread is the offset's own error, half a round trip, which
+    # beside a busy loop reached 3.7 ms either way: the median is what the bias moved.
+    assert np.median(ages) > 0.0, np.percentile(ages, [0, 1, 50])
     # the fast path has one clock, and in lockstep the setpoints are the clock: both refuse the
     # key rather than ignore it
     from mavadrc.flight.fly import UsageError
