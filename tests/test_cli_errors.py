@@ -249,6 +249,29 @@ def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_elsewhere():
     assert pipe.getvalue().splitlines()[-1].startswith("4/4 runs, ")  # the last always said
 
 
+def test_the_flights_live_line_is_a_tqdm_bar_on_a_terminal_that_gives_way_to_messages():
+    from mavadrc.flight.console import Console
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Terminal()
+    c = Console(tty)
+    c.progress("hover", 5.0, 20.0, 0.012, link=lambda: "100 Hz, lost 0.0 %")
+    drawn = tty.getvalue()
+    assert "hover" in drawn and "t    5.0/20 s" in drawn and "error  0.012 m" in drawn
+    assert "100 Hz, lost 0.0 %" in drawn and "left" in drawn and "|" in drawn  # tqdm's bar
+    c.say("land segment done")
+    after = tty.getvalue()[len(drawn):]
+    assert after.endswith("land segment done\n") and after.startswith("\r")  # cleared first
+    c.close()
+    # off a terminal: a plain line, no carriage return, no tqdm
+    pipe = io.StringIO()
+    Console(pipe).progress("hover", 5.0, 20.0, 0.012)
+    assert "\r" not in pipe.getvalue() and "[#####---------------]" in pipe.getvalue()
+
+
 def test_compare_names_the_runs_it_copied_only_when_there_are_some():
     from mavadrc.study.compare import runs_line
 

@@ -175,6 +175,7 @@ class Console:
         self._tty = self.out.isatty()
         self._last_print = 0.0
         self._last_line = 0.0
+        self._bar = None  # the live line on a terminal: a tqdm bar over the mission's time
 
     @property
     def lost(self):
@@ -182,7 +183,9 @@ class Console:
         return self.out.lost
 
     def say(self, text):
-        if self.progress_on and self._tty and self.out.lost is None:
+        if self._bar is not None and self.out.lost is None:
+            self._bar.clear()  # the live line gives way; the next progress() draws it again
+        elif self.progress_on and self._tty and self.out.lost is None:
             self.out.write("\r\033[K")
         self.out.write(text + "\n")
         self.out.flush()
@@ -198,21 +201,41 @@ class Console:
         if not self.progress_on or now - self._last_print < 0.2:
             return
         self._last_print = now
-        k = min(1.0, t / duration) if duration > 0 else 1.0
-        bar = "#" * int(20 * k) + "-" * (20 - int(20 * k))
         # padded, never cut: 'transit to thesis_spiral' is read whole
-        line = f"{segment:<18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m  [{bar}]"
-        if link is not None:
-            line += f"  {link()}"
+        head = f"{segment:<18} t {t:6.1f}/{duration:.0f} s  error {error:6.3f} m"
+        tail = f"  {link()}" if link is not None else ""
         if self.out.lost is not None:
             return  # the live line is no record: not written to the fallback
         if self._tty:
-            self.out.write("\r\033[K" + line)
-            self.out.flush()
-        elif now - self._last_line >= 5.0:
+            self._draw(head, tail, t, duration)
+            return
+        k = min(1.0, t / duration) if duration > 0 else 1.0
+        line = f"{head}  [{'#' * int(20 * k)}{'-' * (20 - int(20 * k))}]{tail}"
+        if now - self._last_line >= 5.0:
             self._last_line = now
             self.out.write(line + "\n")
             self.out.flush()
+
+    def _draw(self, head, tail, t, duration):
+        """The live line on a terminal: tqdm's bar over the mission's time, with the time left
+        at the pace flown (real time, or faster in lockstep)."""
+        fmt = "{desc}  |{bar:20}| {remaining} left" + tail.replace("{", "{{").replace("}", "}}")
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=max(float(duration), 1e-9), file=self.out, leave=False,
+                             dynamic_ncols=True, mininterval=0.0, desc=head, bar_format=fmt)
+        self._bar.bar_format = fmt
+        self._bar.set_description_str(head, refresh=False)
+        self._bar.n = min(max(float(t), 0.0), self._bar.total)
+        self._bar.refresh()
+
+    def close(self):
+        """Take the live line off the terminal (the flight's last lines follow)."""
+        if self._bar is not None:
+            if self.out.lost is None:
+                self._bar.close()
+            self._bar = None
 
 
 class Terminated(KeyboardInterrupt):

@@ -236,6 +236,7 @@ class Flight:
                 gc.unfreeze()
             if self.ident.fitter is not None:
                 self.ident.fitter.close()
+            self.notices.console.close()  # the live line off the terminal
         self.summary = Summary(self).write()
         if self._error is not None:
             raise FlightError(self._error)

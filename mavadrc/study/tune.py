@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 
-from mavadrc.flight.console import counted
+from mavadrc.flight.console import Steps, counted
 from mavadrc.study.experiment import (
     experiment_from_text,
     goal_covers,
@@ -197,12 +197,19 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     start = _cost(exp, j, idx, seed_list)
     stream.write(f"starting gains cost {start:.4f} m\n")
     evals = [0]
+    # on a terminal a tqdm bar over the generations, the best so far as its description; in a
+    # log or a pipe one line per generation
+    bar = Steps(maxiter, "generation", out=stream) if stream.isatty() else None
 
     def report(intermediate_result):  # the generation's best, as scipy keeps it
         evals[0] += 1
         r = intermediate_result
-        stream.write(f"  generation {evals[0]}/{maxiter}: best {r.fun:.4f} m at "
-                     + ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, r.x)) + "\n")
+        at = ", ".join(f"{nm} {v:.3f}" for (nm, _, _), v in zip(space, r.x))
+        if bar is not None:
+            bar.describe(f"best {r.fun:.4f} m at {at}")
+            bar.step()
+            return
+        stream.write(f"  generation {evals[0]}/{maxiter}: best {r.fun:.4f} m at {at}\n")
         stream.flush()
 
     pool = process_pool(n) if n > 1 else None
@@ -219,6 +226,8 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     finally:
         if pool is not None:
             pool.shutdown()
+        if bar is not None:
+            bar.close()
     edges = on_bounds(space, res.x)
     for nm, v, b in edges:
         stream.write(f"warning: {nm} = {v:.4g} sits on its bound {b:g}: the optimum may lie "
