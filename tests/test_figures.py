@@ -569,6 +569,15 @@ def test_a_lockstep_flight_s_figures_print_its_summary_and_keep_off_the_data(
     assert start.get_markersize() > end.get_markersize() and start.get_markerfacecolor() == "none"
     # link.png: lockstep ages are said to be periods
     assert "Lockstep" in drawn["link"].axes[1].get_title(loc="left")
+    # commands.png: the accelerations' axes span the flight in the air too, the rest named
+    right = [ax for ax in drawn["commands"].axes if "acc [m/s" in ax.get_ylabel()]
+    assert len(right) == 3
+    for k, a in enumerate(record.AXES):
+        lo, hi = right[k].get_ylim()
+        cmd = table[f"acc_cmd_{a}"]
+        assert lo <= cmd[air].min() and cmd[air].max() <= hi
+        if cmd.min() < lo or cmd.max() > hi:
+            assert right[k].get_title(loc="right").startswith("clipped: commanded to ")
 
 
 def test_a_hover_s_path_is_drawn_at_10_cm_with_its_start_and_end_both_seen(drawn, tmp_path,

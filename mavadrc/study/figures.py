@@ -652,12 +652,16 @@ def draw_disturbance(out, est=None, truth=None, note=None, title="Total disturba
     return _save(fig, out, "disturbance")
 
 
-def draw_commands(out, t, q, thrust, acc=None, spans=(), title="Commands", xlabel="time [s]"):
+def draw_commands(out, t, q, thrust, acc=None, spans=(), title="Commands", xlabel="time [s]",
+                  window=None):
     """commands.png: thrust (0..1) and the attitude setpoint ``q`` (N, 4) as roll/pitch/yaw.
 
     ``acc`` = (t, acc_cmd (N, 3), acc_applied (N, 3)) adds a column per NED axis, with the
     samples where the limits changed the command shaded.  Angles span at least
     :data:`MIN_SPAN_DEG`, accelerations :data:`MIN_SPAN_ACC`; the legend is below the axes.
+    ``window`` = (t0, t1, words): the accelerations' y axes span that window (the flight in the
+    air), what lies beyond is clipped and named over the axes (a touchdown's spike once
+    squashed the flight into a line).
     """
     t = np.asarray(t, dtype=float)
     eul = quat_to_euler_deg(q)
@@ -704,6 +708,14 @@ def draw_commands(out, t, q, thrust, acc=None, spans=(), title="Commands", xlabe
                                 lw=0)
             ax.set_ylabel(f"{NED[k]} acc [m/s$^2$]")
             ax.axhline(0.0, color="0.5", lw=0.6, gid=MARK)
+            series = [(ta, cmd[:, k]), (ta, app[:, k])]
+            lim_y = None if window is None else _limits(series, window[:2])
+            if lim_y is not None:
+                ax.set_ylim(*lim_y)
+                gone = _clipped(series[:1], ["commanded"], *lim_y, window=window[:2])
+                if gone:
+                    ax.set_title("clipped: " + "; ".join(gone), loc="right", fontsize=7.5,
+                                 color="0.35")
             min_span(ax, MIN_SPAN_ACC)
         handles += right[0].get_legend_handles_labels()[0]
         if limited:
@@ -902,7 +914,8 @@ def _plot_record(folder, out):
     acc = (t, _cols(table, [f"acc_cmd_{a}" for a in ax3], n),
            _cols(table, [f"acc_applied_{a}" for a in ax3], n))
     paths.append(draw_commands(out, t, q, table.get("thrust", np.full(n, math.nan)), acc, spans,
-                               title=_title(summary, "Commands"), xlabel=xlabel))
+                               title=_title(summary, "Commands"), xlabel=xlabel,
+                               window=_in_air(t, spans, summary)))
     if "dt" in table and _finite(table["dt"]):
         paths.append(draw_link(out, t, table["dt"], table.get("sample_age"), spans,
                                title=_title(summary, "Samples"), xlabel=xlabel,
