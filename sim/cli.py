@@ -14,14 +14,8 @@ from .server import SitlServer
 
 
 class UsageError(SystemExit):
-    """A bad option of ``mavadrc sitl``: said in one line on stderr, exit status 2, as every
-    mavadrc command (and argparse) exits for a usage error."""
-
-    def __init__(self, text):
-        prefix = "" if text.startswith("mavadrc sitl:") else "mavadrc sitl: "
-        sys.stderr.write(prefix + text + "\n")
-        super().__init__(text)
-        self.code = 2  # the status; str(self) is still the text
+    """A bad option of ``mavadrc sitl``: :func:`run` says it in one line on stderr and exits
+    2, as every mavadrc command (and argparse) does for a usage error."""
 
 
 def add_arguments(p):
@@ -296,7 +290,13 @@ def _span(values):
 def run(args):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s: %(message)s")
-    servers = make_servers(args)
+    try:
+        servers = make_servers(args)
+    except UsageError as e:
+        text = str(e)
+        print(text if text.startswith("mavadrc sitl:") else f"mavadrc sitl: {text}",
+              file=sys.stderr)
+        raise SystemExit(2) from None
     if len(servers) == 1:
         server = servers[0]
     else:
