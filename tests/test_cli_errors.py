@@ -323,6 +323,8 @@ def test_a_long_wait_is_never_silent_and_a_short_one_says_nothing():
     assert len(said) == n  # nothing after the wait ended
     with ticking(said.append, "quick", every=5.0):
         pass
+    with ticking(said.append, "not asked", every=0.01, enabled=False):
+        time.sleep(0.05)
     assert len(said) == n
 
 

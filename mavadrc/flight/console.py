@@ -95,9 +95,13 @@ def counted(n, noun):
 
 
 @contextlib.contextmanager
-def ticking(say, what, every=5.0):
+def ticking(say, what, every=5.0, enabled=True):
     """No silent wait: while the body runs (a compile, a fit), ``say(f"{what} ({n} s)")``
-    every ``every`` s from a thread of its own; nothing if it ends sooner."""
+    every ``every`` s from a thread of its own; nothing if it ends sooner, or if not
+    ``enabled`` (no thread then)."""
+    if not enabled:
+        yield
+        return
     done = threading.Event()
     t0 = time.monotonic()
 

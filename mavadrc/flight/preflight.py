@@ -5,7 +5,6 @@ its parameters, the streams (each request confirmed).  Measure: idle setpoints s
 achieved sample rate is measured; then it is judged (:meth:`Preflight._judge_rate`).
 """
 
-import contextlib
 import time
 
 from mavadrc.design.fitworker import FitWorker
@@ -68,8 +67,7 @@ class Preflight:
             say("compiling the controller's kernels (the first flight after an install or "
                 "an update; numba caches them: later flights start at once)")
         c = self.choice
-        with ticking(say, "still compiling the controller's kernels") if compiling \
-                else contextlib.nullcontext():
+        with ticking(say, "still compiling the controller's kernels", enabled=compiling):
             c.make(c.hover if c.hover is not None else 0.5)
         if c.identifying():
             load_fitting()  # here too: where the fits' process cannot start, they run here

@@ -8,7 +8,6 @@ in one folder: ``results.json`` (one record per run), ``results.csv`` (the same,
 """
 
 import collections
-import contextlib
 import json
 import math
 import os
@@ -95,8 +94,7 @@ def run_matrix(exp, *, seeds=None, workers=None, scheduler=None, via="inprocess"
                 stream.write(text + "\n")
                 stream.flush()
 
-            with ticking(say, "still compiling the kernels") if compiling \
-                    else contextlib.nullcontext():
+            with ticking(say, "still compiling the kernels", enabled=compiling):
                 _warm_up(exp)
         n = default_workers(workers)
         if via == "mavlink":
