@@ -375,7 +375,7 @@ def config_path(name_or_path: str | Path, folder: str) -> Path:
         return path
     path = CONFIG_DIR / folder / f"{text}.yaml"
     if not path.exists():
-        shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
+        shipped = _shipped(folder)
         raise ConfigError(f"{text}: no such {folder} config (shipped: {', '.join(shipped)}"
                           f"{did_you_mean(text, shipped)})")
     return path
@@ -394,8 +394,12 @@ def _nearest_file(path: Path, folder: str) -> str:
     near = closest(path.name, names)
     if near is not None:
         return f"; did you mean {str(path.with_name(near))!r}?"
-    shipped = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
-    return did_you_mean(stem, shipped)
+    return did_you_mean(stem, _shipped(folder))
+
+
+def _shipped(folder: str) -> list[str]:
+    """The names of the configs shipped in ``configs/FOLDER``."""
+    return sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
 
 
 def _shown(path: Path) -> str:

@@ -24,11 +24,11 @@ UNREACHABLE_S = 10.0
 HOLD_CONFIRM_S = 3.0
 
 
-
 def _doing(action):
     """What a failsafe action does, as the console says it."""
     return ("watching the autopilot land" if action == WATCH else "landing" if action == LAND
             else "hold, then land")
+
 
 class Failsafe:
     """The supervisor's action in force (``action``, None: none) and its progress (``step``:

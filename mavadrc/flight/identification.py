@@ -268,11 +268,11 @@ class Identification:
         c.ctrl, c.gains, c.delay_margin = ctrl, gains, margin
         rec_margin = rec.get("delay_margin_s")  # on the response refitted (_fit)
         note["delay_margin_s"] = rec_margin
+        said = margin if rec_margin is None else rec_margin
         c.note_scaling(gains)
         self.notices.say(f"input model fitted again with the drag learnt "
                          f"({', '.join(f'{x:.2f}' for x in drag[:2])} /s): {new_lag[0]:.3f} s "
                          f"horizontally for the doublets' {old_lag[0]:.3f}; flying it"
                          f"{bandwidths(gains)}{prediction_text(c.ctrl)} from here; "
-                         + identified_margin_text(margin if rec_margin is None else rec_margin,
-                                                  gains, MARGIN_SHARE))
-        self._warn_unstable(margin if rec_margin is None else rec_margin)
+                         + identified_margin_text(said, gains, MARGIN_SHARE))
+        self._warn_unstable(said)
