@@ -371,24 +371,6 @@ def fleet_figures(seconds=3.0, counts=(1, 10, 30, 60, 100), more=(150, 200, 300)
     return fig
 
 
-def _mavlink_frames(data):
-    """(message id, payload) of each MAVLink 1 or 2 frame in a datagram (no checksum check:
-    the bench counts what a loopback link delivers)."""
-    i = 0
-    while i + 8 <= len(data):
-        if data[i] == 0xFD:
-            n, signed = data[i + 1], data[i + 2] & 1
-            msgid = data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16
-            yield msgid, data[i + 10:i + 10 + n]
-            i += 12 + n + 13 * signed
-        elif data[i] == 0xFE:
-            n = data[i + 1]
-            yield data[i + 5], data[i + 6:i + 6 + n]
-            i += 8 + n
-        else:
-            return
-
-
 def _fleet_ports(n, tries=20):
     """``n`` UDP sockets bound to consecutive loopback ports (BASE + k): where the vehicles of
     ``mavadrc sitl --count n --offboard-port BASE`` send."""
@@ -428,6 +410,8 @@ def count_as_shipped(n, seconds=5.0, rate_hz=100.0, start_timeout=180.0):
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink.dialects.v20 import common as mavlink
 
+    from sim.lossy.frames import split_frames
+
     base, socks = _fleet_ports(n)
     sink = udp_sink()
     proc = subprocess.Popen([sys.executable, "-m", "sim", "--count", str(n), "--offboard-port",
@@ -459,10 +443,13 @@ def count_as_shipped(n, seconds=5.0, rate_hz=100.0, start_timeout=180.0):
                         s.sendto(ask.pack(enc), addr)
                     if not measuring:
                         continue
-                    for msgid, payload in _mavlink_frames(data):
-                        if msgid == lpn:
-                            # MAVLink 2 cuts a payload's trailing zero bytes
-                            boot = struct.unpack_from("<I", bytes(payload[:4]).ljust(4, b"\0"))[0]
+                    for frame in split_frames(data):
+                        if frame.msgid == lpn:
+                            # time_boot_ms opens the payload (after a 10-byte MAVLink 2 header,
+                            # 6-byte MAVLink 1); MAVLink 2 cuts its trailing zero bytes
+                            at, size = (6 if frame.v1 else 10), frame.raw[1]
+                            head = bytes(frame.raw[at:at + min(4, size)]).ljust(4, b"\0")
+                            boot = struct.unpack_from("<I", head)[0]
                             counts[k] += 1
                             if first[k] is None:
                                 first[k] = (boot, time.monotonic())
