@@ -231,10 +231,15 @@ class Autopilot:
     def take_position_setpoint(self, pos, vel, acc, yaw, yaw_rate):
         """A local NED position target (None: a part ignored); whether it was taken (False:
         ignored).  Flown in the offboard mode when armed, once the motors are free (PX4
-        Takeoff.cpp, ArduCopter's interlock)."""
+        Takeoff.cpp, ArduCopter's interlock); not on the ground where the personality flies
+        none there (:attr:`~sim.personality.Personality.position_targets_on_ground`)."""
         if not self._takes_setpoints():
             return False
         self.last_setpoint_t = self.vehicle.time
+        if not self.ap.position_targets_on_ground and self.vehicle.landed:
+            # (proof of life all the same; a takeoff under way goes on: ArduCopter's would
+            # be replaced by the target, and stay on the ground)
+            return True
         self.guided.target = None
         if self.mode.behaviour == PP.OFFBOARD and self.vehicle.armed:
             self.when_spooled(lambda: self.vehicle.set_position_target(

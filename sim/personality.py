@@ -351,6 +351,10 @@ class Personality:
     setpoints_only_in_offboard: bool = False
     #: switching to the offboard mode in the air holds the position until a setpoint comes
     offboard_entry_holds: bool = False
+    #: position targets are flown from the ground (PX4: a target above the vehicle takes it
+    #: off); False: ignored while the vehicle is landed, a takeoff command lifts it first
+    #: (ArduCopter's GUIDED: pos_control_run does nothing disarmed or landed)
+    position_targets_on_ground: bool = True
     #: the mode MAV_CMD_NAV_TAKEOFF switches to (None: a takeoff only in the offboard mode)
     takeoff_mode: str = None
     #: the mode the takeoff mode hands over to once the takeoff altitude is reached
@@ -823,7 +827,7 @@ def ardupilot():
                       # the position; attitude and position targets only in the guided modes
                       offboard_timeout_param="GUID_TIMEOUT", offboard_loss_failsafe=False,
                       offboard_needs_stream=False, setpoints_only_in_offboard=True,
-                      offboard_entry_holds=True,
+                      offboard_entry_holds=True, position_targets_on_ground=False,
                       # GCS_MAVLINK::handle_command_component_arm_disarm: FAILED;
                       # set_message_interval without an ap_message: DENIED;
                       # handle_command_request_message without one: FAILED

@@ -268,7 +268,25 @@ class Navigator:
         self.yaw_rate = math.nan
         self.mode = "land"
 
+    def wants_takeoff(self, pos):
+        """Whether the offboard target asks a vehicle on the ground to take off: its position
+        above the vehicle, or a climb asked by velocity or acceleration (PX4
+        MulticopterPositionControl's want_takeoff in OFFBOARD; ArduCopter's GUIDED takes none
+        from the ground, its companion takes off by MAV_CMD_NAV_TAKEOFF first)."""
+        sp = self.sp
+        return ((math.isfinite(sp[PSP_POS + 2]) and sp[PSP_POS + 2] < pos[2])
+                or (math.isfinite(sp[PSP_VEL + 2]) and sp[PSP_VEL + 2] < 0.0)
+                or (math.isfinite(sp[PSP_ACC + 2]) and sp[PSP_ACC + 2] < 0.0))
+
     def update(self, pos, vel, landed):
+        if self.mode == "position" and landed and not self.wants_takeoff(pos):
+            # on the ground, no takeoff asked: the motors at idle, the loop at rest (PX4's
+            # takeoff state machine before its ramp; ArduCopter's landed GUIDED)
+            self.ps[:] = 0.0
+            self.out[G.O_Q:G.O_Q + 4] = (math.cos(0.5 * self.yaw), 0.0, 0.0,
+                                         math.sin(0.5 * self.yaw))
+            self.out[G.O_THRUST] = 0.0
+            return self.out[G.O_Q:G.O_Q + 4], 0.0
         if self.mode == "takeoff":
             pr = self._profile
             pr.step(self.h)
