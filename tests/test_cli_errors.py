@@ -393,7 +393,7 @@ def test_a_misspelt_choice_or_segment_is_named_and_the_case_of_a_kind_does_not_m
     path.write_text(HOVER.replace("type: ladrc", "type: LADRC"))
     assert load_mission(path).controller.kind == "ladrc"
     path.write_text(HOVER.replace("type: ladrc", "type: ladcr"))
-    with pytest.raises(ConfigError, match=r"must be one of adrc, ladrc, pd, pid \(got 'ladcr'; "
+    with pytest.raises(ConfigError, match=r"must be one of adrc, ladrc, pd, pid, native \(got 'ladcr'; "
                                           r"did you mean 'ladrc'\?\)"):
         load_mission(path)
     path.write_text(HOVER.replace("- takeoff:", "- takof:"))

@@ -104,9 +104,10 @@ def build_parser():
                    help="fly a vehicle at this MAVLink URL (udpin:0.0.0.0:14540, udp://:14540, "
                         "udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0:57600) instead of starting "
                         "the bundled one")
-    f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid"), default=None,
-                   type=str.lower, help="position controller, in either case: ladrc or LADRC "
-                                        "(default: the mission's)")
+    f.add_argument("--controller", choices=("adrc", "ladrc", "pd", "pid", "native"), default=None,
+                   type=str.lower, help="position controller, in either case: ladrc or LADRC; "
+                                        "native: the autopilot's own, sent the mission's "
+                                        "reference as position targets (default: the mission's)")
     f.add_argument("--takeover", action="store_true",
                    help="fly a vehicle that is already armed, in the air or in OFFBOARD/GUIDED "
                         "(another controller's), from where it is; without it such a vehicle is "

@@ -6,6 +6,7 @@ import time
 import numpy as np
 
 from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
+from mavadrc.control.native import NativeController
 from mavadrc.control.position import THRUST_ESTIMATE_S, PositionController
 from mavadrc.design.identify import (
     ORDER,
@@ -46,6 +47,8 @@ def default_gains(kind, input_model=False):
             return {**g, "wc": (SAFE_WC,) * 3, "wo": (SAFE_WO,) * 3}
         told = (12.5, 12.5, 15.0) if kind == "ladrc" else (12.0, 12.0, 15.0)
         return {**g, "wc": (2.5, 2.5, 3.0), "wo": told}
+    if kind == "native":
+        return {}  # the autopilot's own position controller: its parameters, not ours
     if kind == "pid":
         # the PD default's bandwidth plus an integrator (channels.pid_gains): kp_pos = wc/2,
         # kp_vel = 2 wc, ki_vel = wc^2/2, no D, i.e. kp_pos (1.25, 1.25, 1.5) /s, kp_vel
@@ -227,7 +230,10 @@ MARGIN_SHARE = 0.75
 
 
 def built(spec, hover, kind, rate, gains):
-    """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin."""
+    """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin (None
+    for ``native``: the autopilot's loop, whose margin the companion does not know)."""
+    if kind == "native":
+        return NativeController(hover, math.radians(spec.tilt_max_deg), 1.0 / rate), None
     ctrl = make_controller(spec, hover_thrust=hover, kind=kind, rate_hz=rate, gains=gains)
     return ctrl, delay_margin(ctrl)
 
@@ -429,6 +435,9 @@ def make_controller(spec, hover_thrust=None, mass=None, max_thrust=None, kind=No
     before: :func:`mavadrc.fast.identify.with_identified`); ``rate_hz`` overrides the spec's rate;
     ``gains``: those of :func:`resolve_gains`, already resolved."""
     kind = kind or spec.kind
+    if kind == "native":
+        return NativeController(hover_thrust if hover_thrust is not None else 0.5,
+                                math.radians(spec.tilt_max_deg), 1.0 / (rate_hz or spec.rate_hz))
     gains = dict(gains if gains is not None else
                  resolve_gains(spec, kind, vehicle, attitude_controller))
     if kind == "pd" and "kp" in gains and "wc" in gains:
@@ -476,6 +485,8 @@ def spec_margin(spec, kind=None, vehicle=None, attitude_controller="px4"):
     """:func:`delay_margin` of a mission's controller spec (cached: an experiment asks for the
     same few controllers in every run)."""
 
+    if (kind or spec.kind) == "native":
+        return None  # the autopilot's own loop: not the companion's to know
     key = (repr(spec), kind, repr(vehicle), attitude_controller)
     if key not in _SPEC_MARGINS:
         ctrl = make_controller(spec, hover_thrust=0.5, kind=kind, vehicle=vehicle,

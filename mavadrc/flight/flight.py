@@ -143,10 +143,10 @@ class Flight:
         self.choice = ControllerChoice(mission, kind, mission.controller.rate_hz, hover_thrust,
                                        design_lag)
         self.gate = SampleGate(self.choice.h)
-        self.setpoints = Setpoints(link)
+        self.setpoints = Setpoints(link, self.v, native=kind == "native")
         self.confirm = Confirm(link, self.notices)
         self.steering = Steering(mission, self.choice, self.progress, self.v, self.setpoints,
-                                 self.clock)
+                                 self.clock, lockstep)
         self.ident = Identification(self.choice, self.notices, link, self.progress, lockstep)
         self.failsafe = Failsafe(self.supervisor, link, self.clock, self.v, self.progress,
                                  self.notices, self.setpoints, self.steering, self.confirm,

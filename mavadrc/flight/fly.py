@@ -158,7 +158,11 @@ def fly(mission, *, connect=None, kind=None, out=None, lockstep=False, seed=None
                         design_lag=design_lag)
         flight.context = run_context(mission, kind, connect, lockstep)
         flying.append(flight)
-        if kind != mission.controller.kind:
+        if kind == "native" and kind != mission.controller.kind:
+            stream.write(f"note: --controller native: the autopilot's own position controller "
+                         f"flies the reference (the mission's {mission.controller.kind} gains do "
+                         "not apply)\n")
+        elif kind != mission.controller.kind:
             stream.write(f"note: --controller {kind}: the mission's {mission.controller.kind} "
                          f"gains do not apply; flying {kind}'s defaults (summary.json: "
                          "controller_flown)\n")

@@ -265,7 +265,9 @@ class Landing:
 
     def cut_phase(self, s):
         k = max(0.0, 1.0 - (s.t - self.clock.t0) / CUT_S)
-        self.setpoints.send(s.t, level_quat(self.v.yaw), self._cut_from * k)
+        # (native: no thrust of ours to cut; the target held under the vehicle)
+        self.setpoints.send(s.t, level_quat(self.v.yaw),
+                            0.0 if self.setpoints.native else self._cut_from * k)
         if k <= 0.0:
             self.clock.enter("disarming", s)
 

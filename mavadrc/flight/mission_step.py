@@ -180,7 +180,7 @@ class MissionStep:
 
     def _named_values(self, s):
         """The observers' disturbance estimates at 10 Hz, live, for a ground station."""
-        if self.choice.kind != "pd" and s.t - self._last_named >= 0.1:
+        if self.choice.kind not in ("pd", "native") and s.t - self._last_named >= 0.1:
             self._last_named = s.t
             z3 = self.choice.ctrl.disturbance
             for i, a in enumerate("xyz"):

@@ -95,7 +95,7 @@ class Preflight:
                 say(f"still waiting for a heartbeat on {self.link.url} ({s} s)")
 
         hb = self.link.wait_heartbeat(timeout, idle=idle)
-        self.v.seq = sequence_for(self.link.autopilot)
+        self.v.seq = sequence_for(self.link.autopilot, self.choice.kind)
         others = sorted(self.link.systems_heard - {self.link.target_system})
         say(f"connected to system {self.link.target_system} ({self.link.autopilot}, "
             f"{vehicle_mode(self.link, hb.custom_mode)}) on {self.link.url}"

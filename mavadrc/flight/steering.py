@@ -34,7 +34,7 @@ class Steering:
     period), the mission's progress (its trajectory), the vehicle's telemetry and the
     setpoints out."""
 
-    def __init__(self, mission, choice, progress, vehicle, setpoints, clock):
+    def __init__(self, mission, choice, progress, vehicle, setpoints, clock, lockstep=False):
         self.m = mission
         self.choice = choice
         self.progress = progress
@@ -42,6 +42,7 @@ class Steering:
         self.setpoints = setpoints
         self.clock = clock
         self.tilt_measured = mission.controller.thrust_tilt == "measured"
+        self.lockstep = lockstep  # the vehicle's clock is the setpoint stream
         self.hold_point = None  # where a hold keeps the vehicle (None: where the next step is)
         self.last_thrust = None  # the last control step's thrust (landing_tilt)
         self._grid = None
@@ -103,6 +104,8 @@ class Steering:
         thrust falls towards its floor (:func:`landing_tilt`).  ``aref``: the reference's own
         acceleration then, where ``r.acc`` is the one fed forward (None: ``r.acc``)."""
         ctrl = self.choice.ctrl
+        if self.setpoints.native:
+            return self._native_step(s, r, hold, aref)
         told = None
         if tilt_cap is not None:
             told = ctrl.tilt_limit
@@ -117,6 +120,21 @@ class Steering:
         self.last_thrust = thrust
         thrust = self._thrust_for_tilt(s, q, thrust)
         self.setpoints.send(s.t, q, thrust * self.v.seq.thrust_factor(self.v.cos_tilt))
+        return q, thrust
+
+    def _native_step(self, s, r, hold, aref):
+        """``native``: the reference (or the hold point) sent as the autopilot's position
+        target.  ArduCopter's GUIDED is not sent one before the vehicle has left the ground on
+        its MAV_CMD_NAV_TAKEOFF (:attr:`~mavadrc.mavlink.sequence.Sequence.takeoff_command`: a
+        target would replace the takeoff and GUIDED flies none on the ground); a lockstep
+        vehicle (the bundled one, which takes them from the ground) gets them all the same, its
+        clock being the stream."""
+        q, thrust = self._update(s, r, hold, aref)
+        if self.v.seq.takeoff_command and not self.progress.lifted and not self.lockstep \
+                and not hold:
+            return q, thrust
+        pos, vel, acc, yaw = self.choice.ctrl.target
+        self.setpoints.position(s.t, pos, vel, acc, yaw)
         return q, thrust
 
     def _thrust_for_tilt(self, s, q, thrust):

@@ -3,14 +3,19 @@ mission's frame set where the vehicle is, and, from the ground, a reference that
 vehicle heavier than told to lift off while the thrust rises (the rules shared with the fast
 path are in :mod:`mavadrc.mission.takeoff`)."""
 
+import math
+
 import numpy as np
 
 from mavadrc.control.rotations import level_quat, wrap_pi
 from mavadrc.design.margin import margin_text, prediction_text
 from mavadrc.errors import FlightError
+from mavadrc.mavlink.commands import result_name
+from mavadrc.mavlink.dialect import M
 from mavadrc.mission.identification import HANDOVER_S, TAKEOFF_HANDOVER_S, leg_speed_of, windows_in
 from mavadrc.mission.takeoff import (
     LIFTOFF_HEIGHT,
+    NATIVE_TAKEOFF_WAIT_S,
     SPOOL_S,
     TAKEOFF_RAMP_PER_S,
     TAKEOFF_WAIT_M,
@@ -47,6 +52,7 @@ class Takeoff:
         self.range_disputed = False  # the range finder said the estimate's lift-off was not
         self.yaw_offset = 0.0  # the heading still to turn from the vehicle's to the mission's
         self._waited_capped = 0.0  # s of that waiting with the thrust at its bound
+        self.takeoff_cmd = None  # native on ArduCopter: its MAV_CMD_NAV_TAKEOFF
 
     def spool_phase(self, s):
         t_arm = self.clock.t0
@@ -55,8 +61,10 @@ class Takeoff:
         if self.start_at is not None and motors > self.start_at - SPOOL_S + 1e-9:
             raise FlightError(f"armed at {t_arm:.3f} s with a {self.v.motor_delay:g} s motor "
                               f"delay: too late to start the mission at {self.start_at:.3f} s")
+        # (native: the autopilot spools its motors itself; the target stays under the vehicle)
         self.setpoints.send(s.t, level_quat(self.v.yaw),
-                            float(spool_thrust(s.t, end, self.choice.hover)))
+                            0.0 if self.setpoints.native
+                            else float(spool_thrust(s.t, end, self.choice.hover)))
         if s.t >= end - 1e-9 or lifted_off(self.progress.origin[2] - s.pos[2], s.vel[2]):
             self.start_mission(s)  # the controller flies from the next sample
 
@@ -101,6 +109,8 @@ class Takeoff:
             ident.handover_t = ident.data_span()[0] - TAKEOFF_HANDOVER_S
         p.t0 = s.t
         p.start = s.t
+        if self.v.seq.takeoff_command and not self.v.takeover_in_air:
+            self._command_takeoff()
         if self.tracks.truth is not None:
             self.tracks.truth.start()
         p.lifted = self.v.takeover_in_air
@@ -108,11 +118,23 @@ class Takeoff:
         self.gate.restart(c.h)
         # the delay margin is said once: here, or beside the identification that sets the gains
         # the mission flies (the takeoff's safe gains have plenty)
-        margin = "" if c.identifying() else f"; {margin_text(c.delay_margin)}"
+        margin = "" if c.identifying() or c.kind == "native" else \
+            f"; {margin_text(c.delay_margin)}"
         self.notices.say(f"flying {self.m.name!r} with {c.kind} at {c.rate:g} Hz "
                          f"({p.traj.duration:.1f} s){ident.takeoff_text()}"
                          f"{prediction_text(c.ctrl)}{margin}")
         self.clock.enter("mission", s)
+
+    def _command_takeoff(self):
+        """``native`` on ArduCopter: MAV_CMD_NAV_TAKEOFF to the takeoff segment's altitude (the
+        position targets follow once the vehicle is off the ground:
+        :meth:`~mavadrc.flight.steering.Steering._native_step`)."""
+        kind, spec, _ = self.m.segments[0]
+        alt = float(spec.get("altitude", 1.0)) if kind == "takeoff" else 1.0
+        self.takeoff_cmd = self.setpoints.link.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0,
+                                                       math.nan, 0, 0, alt)
+        self.notices.say(f"{self.v.seq.title}'s takeoff to {alt:g} m asked: its position "
+                         "controller flies from there")
 
     def waits(self, s, r):
         """Whether the takeoff's reference ``r`` (the sample's) has climbed
@@ -123,14 +145,17 @@ class Takeoff:
         (Taken over in the air, the flight starts lifted: never asked.)"""
         return float(s.pos[2] - r.pos[2]) > TAKEOFF_WAIT_M
 
-    @staticmethod
-    def waiting_reference(s, rc):
+    def waiting_reference(self, s, rc):
         """The reference a waiting takeoff flies to: ``rc`` held vertically at rest
         :data:`~mavadrc.mission.takeoff.TAKEOFF_WAIT_M` above the vehicle's estimate.  Held
         where the wait began instead, an estimate sinking on the ground (PX4 SIH's read 0.3 m of
         descent in a second of waiting) grew the error the vertical observer learns a weight
         from: it learnt 5.9 m/s^2 where 3.9 were missing, and the lift-off overshot 0.42 m."""
-        pos = np.array([rc.pos[0], rc.pos[1], float(s.pos[2]) - TAKEOFF_WAIT_M])
+        # native: at the takeoff spot's height instead.  The autopilot's loop follows a target
+        # wherever it is put, and one kept above an estimate that climbs climbed with it: on
+        # PX4 SIH the range finder disputed the lift-off while the estimate rose 0.6 m
+        base = self.progress.origin[2] if self.setpoints.native else float(s.pos[2])
+        pos = np.array([rc.pos[0], rc.pos[1], base - TAKEOFF_WAIT_M])
         vel = np.array([rc.vel[0], rc.vel[1], 0.0])
         acc = np.array([rc.acc[0], rc.acc[1], 0.0])
         return Reference(pos, vel, acc, rc.yaw, rc.yaw_rate)
@@ -141,6 +166,14 @@ class Takeoff:
         off.  Why the flight must end, once it has sat at the bound for TAKEOFF_WAIT_MAX_S."""
         ctrl = self.choice.ctrl
         step = s.dt if s.dt is not None else self.choice.h
+        if self.setpoints.native:  # the autopilot's own takeoff: it lifts off, or not
+            if self.wait + 1e-9 < NATIVE_TAKEOFF_WAIT_S:
+                return None
+            c = self.takeoff_cmd
+            refused = "" if c is None or not c.done or c.accepted else \
+                f" (its takeoff command answered {result_name(c.result)})"
+            return (f"the vehicle did not lift off: {self.wait:.0f} s on the ground with the "
+                    f"autopilot's position controller flying{refused}")
         if self.wait <= step + 1e-9:
             self.notices.say(f"still on the ground {TAKEOFF_WAIT_M:g} m below the takeoff's "
                              "reference: the reference waits, the thrust rises until it lifts "
@@ -183,7 +216,10 @@ class Takeoff:
         if lifted_off(self.progress.origin[2] - s.pos[2], s.vel[2]) and not self.range_grounded(s):
             self.progress.lifted = True
             self.liftoff_s = t
-            if self.wait > 0.0:
+            if self.wait > 0.0 and self.setpoints.native:
+                self.notices.say(f"lifted off: the takeoff waited {self.wait:.1f} s for the "
+                                 "autopilot's")
+            elif self.wait > 0.0:
                 self.liftoff_hover = ctrl.hover_thrust_estimate
                 self.notices.say(f"lifted off: the takeoff waited {self.wait:.1f} s, the "
                                  f"hover thrust raised to {ctrl.hover_thrust_estimate:.3f} "

@@ -238,5 +238,10 @@ class Link:
         """SET_ATTITUDE_TARGET with attitude and thrust, body rates ignored; refuses non-finite."""
         setpoints.attitude_target(self.mav, self.target_system, t_boot_ms, q, thrust)
 
+    def position_target(self, t_boot_ms, pos, vel, acc, yaw):
+        """SET_POSITION_TARGET_LOCAL_NED: position, velocity, acceleration, yaw; refuses
+        non-finite."""
+        setpoints.position_target(self.mav, self.target_system, t_boot_ms, pos, vel, acc, yaw)
+
     def named_float(self, t_boot_ms, name, value):
         setpoints.named_float(self.mav, t_boot_ms, name, value)

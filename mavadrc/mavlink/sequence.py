@@ -1,4 +1,5 @@
-"""What differs between PX4 and ArduPilot for a companion flying attitude setpoints.
+"""What differs between PX4 and ArduPilot for a companion flying attitude setpoints (or, with
+``controller: native``, position targets).
 
 One object per autopilot: the mode that takes our setpoints and how to ask for it, the modes a
 failsafe hands the vehicle to, mode names, the parameters that hold the hover thrust and the
@@ -82,6 +83,9 @@ class Sequence:
     debug_vect = True
     #: the message its simulator sends the vehicle's true state in (mavadrc.flight.truth), if asked
     truth_message = None
+    #: the vehicle leaves the ground by MAV_CMD_NAV_TAKEOFF before it flies position targets
+    #: (``controller: native``; False: the targets lift it off)
+    takeoff_command = False
 
     def request_control(self, link):
         """Ask for the mode that takes our setpoints; returns the :class:`~mavadrc.mavlink.commands.Command`."""
@@ -233,5 +237,27 @@ class ArduPilotSequence(Sequence):
         return max(0.1, cos_tilt)
 
 
-def sequence_for(autopilot):
-    return PX4Sequence() if autopilot == "px4" else ArduPilotSequence()
+class ArduPilotNativeSequence(ArduPilotSequence):
+    """ArduCopter flying its own position controller (``controller: native``): GUIDED, which
+    takes SET_POSITION_TARGET_LOCAL_NED (GUIDED_NOGPS does not).  GUIDED flies no position
+    target while the vehicle is on the ground (ModeGuided: disarmed or landed, nothing runs,
+    and the target replaces a takeoff under way): the vehicle leaves the ground by
+    MAV_CMD_NAV_TAKEOFF and takes the targets once it is off (:attr:`takeoff_command`).
+    Thrust is never sent, so GUID_OPTIONS is not read."""
+
+    control_mode = "GUIDED"
+    #: the vehicle leaves the ground on MAV_CMD_NAV_TAKEOFF, not on position targets
+    takeoff_command = True
+
+    def request_control(self, link):
+        return link.command(M.MAV_CMD_DO_SET_MODE, 1, AP_GUIDED)
+
+    def preflight(self, link, safety, say, read_param, sources):
+        self.angle_boost = False  # no thrust is sent
+
+
+def sequence_for(autopilot, kind=None):
+    """The :class:`Sequence` of ``autopilot`` for a flight of controller ``kind``."""
+    if autopilot == "px4":
+        return PX4Sequence()
+    return ArduPilotNativeSequence() if kind == "native" else ArduPilotSequence()

@@ -3,7 +3,7 @@
     name: thesis spiral in wind
     vehicle: crazyflie              # a vehicle file; or {hover_thrust: 0.6} / {mass:, max_thrust:}
     controller:
-      type: ladrc                   # adrc | ladrc | pd | pid
+      type: ladrc                   # adrc | ladrc | pd | pid | native (the autopilot's own)
       rate_hz: 100
       wc: [2.5, 2.5, 3.0]           # per axis (x, y, z) or one number
       wo: [12.5, 12.5, 15.0]
@@ -32,7 +32,7 @@ from mavadrc.mission.identification import ALTITUDE
 from sim.sensors import CLOCK_RATES, WANDER_CORNER_HZ
 from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
 
-KINDS = ("adrc", "ladrc", "pd", "pid")
+KINDS = ("adrc", "ladrc", "pd", "pid", "native")
 #: what a controller's ``thrust_tilt`` may say (:class:`ControllerSpec`)
 THRUST_TILTS = ("commanded", "measured")
 #: what flies the takeoff of a flight that identifies its vehicle (``takeoff``): the safe
@@ -506,6 +506,13 @@ def read_controller(sec, kinds=None):
         c.gains["td"] = sec.boolean("td")
     if sec.has("eso_gains"):
         c.gains["eso_gains"] = sec.string("eso_gains", choices=("han", "thesis"))
+    if c.kind == "native":
+        # the autopilot's own position controller: its gains are its parameters (PX4 MPC_*,
+        # ArduCopter PSC_*), not the mission's; nor does the companion size any thrust
+        for key in [*c.gains, "thrust_tilt", "takeoff"]:
+            if sec.has(key):
+                sec.error(key, "the autopilot's own position controller flies native: set its "
+                               "gains as its parameters (PX4 MPC_*, ArduCopter PSC_*)")
     sec.finish()
     return c
 

@@ -63,3 +63,13 @@ def lifted_f32(pos, vel, origin, rules):
     """:func:`lifted_off` on a float32 sample, for the compiled fast path (``rules``:
     :data:`GROUND_RULES`)."""
     return origin[2] - pos[2] >= rules[0] or vel[2] < -rules[1]
+
+
+#: ``controller: native``, on the ground (idle, the thrust cut): the position target this far (m)
+#: below the vehicle, so the autopilot's position loop holds it down instead of starting a
+#: takeoff (PX4 mc_pos_control takes off in OFFBOARD once a target is above the vehicle)
+GROUND_TARGET_BELOW_M = 0.5
+#: ``controller: native``: s the takeoff's reference waits for the autopilot's own takeoff to
+#: lift the vehicle off before the flight ends (PX4 ramps its takeoff over MPC_TKO_RAMP_T,
+#: ArduCopter spools up and climbs on its takeoff command)
+NATIVE_TAKEOFF_WAIT_S = 10.0
