@@ -251,7 +251,7 @@ def test_a_malformed_experiment_names_file_line_and_field(text, where, tmp_path)
 def test_the_shipped_experiments_load():
     thesis = load_experiment(EXPERIMENTS / "thesis.yaml")
     assert len(thesis.scenarios) >= 20
-    assert {c.kind for c in thesis.controllers} == {"pd", "adrc", "ladrc", "pid", "oracle"}
+    assert {c.kind for c in thesis.controllers} == {"pd", "adrc", "ladrc", "pid", "native", "oracle"}
     gusts = load_experiment(EXPERIMENTS / "gusts.yaml")
     assert {sc.mission.vehicle for sc in gusts.scenarios} == {"crazyflie", "x500"}
     assert experiment_from_text(thesis.source, thesis.text) is thesis  # cached by text

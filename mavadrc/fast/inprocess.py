@@ -86,7 +86,9 @@ STATUS_OK = 0
 STATUS_BREACH = 1
 STATUS_NONFINITE = 2
 STATUS_LINK = 3
+STATUS_GROUND = 4  # (native) the autopilot's loop did not lift the vehicle off
 STATUS_NAMES = {STATUS_OK: None, STATUS_BREACH: "safety limit breached",
+                STATUS_GROUND: "the vehicle did not lift off",
                 STATUS_NONFINITE: "the controller produced a non-finite setpoint",
                 STATUS_LINK: "link: a gap between samples past the mission's limit"}
 
@@ -366,16 +368,11 @@ def boot_seconds(tick, physics_dt):
     return (ms & 0xFFFFFFFF) / 1000.0
 
 
-def fly_resolved(mission, kind=None, seed=None, wind=None, vehicle_options=None):
-    """Fly ``mission`` in process, its input model resolved already (no ``input_lag: auto``:
-    :func:`mavadrc.fast.fly.fly_inprocess` resolves it first); returns an :class:`InProcessRun`.
-
-    ``kind``: the position controller ('pd', 'ladrc', 'adrc', 'pid', or 'oracle': PD with the
-    true disturbance fed forward); ``seed``/``wind`` override the mission's (as ``mavadrc fly``'s
-    options do).  ``vehicle_options``: extra :class:`SimVehicle` keywords.
-    """
-    kind = kind or mission.controller.kind
-    oracle = kind == "oracle"
+def vehicle_of(mission, seed=None, wind=None, vehicle_options=None):
+    """The bundled vehicle ``mission`` flies in process (its file changed as its ``sim:``
+    section says; ``seed``/``wind`` override the mission's), at rest before its boot: returns
+    (vehicle, control period h, physics steps per period, sensor latency in periods, the hover
+    thrust the companion is told).  Refuses what the in-process path does not model."""
     seed = mission.seed if seed is None else seed
     spec = mission.controller
     wind = mission.wind if wind is None else wind
@@ -414,6 +411,23 @@ def fly_resolved(mission, kind=None, seed=None, wind=None, vehicle_options=None)
         raise ValueError(f"sensor latency {mission.sensor_latency_s:g} s must be a whole number "
                          f"of control periods ({h:g} s) for the in-process path")
     hover = mission.hover_thrust if mission.hover_thrust is not None else v.hover_thrust
+    return v, h, per, lag, hover
+
+
+def fly_resolved(mission, kind=None, seed=None, wind=None, vehicle_options=None):
+    """Fly ``mission`` in process, its input model resolved already (no ``input_lag: auto``:
+    :func:`mavadrc.fast.fly.fly_inprocess` resolves it first); returns an :class:`InProcessRun`.
+
+    ``kind``: the position controller ('pd', 'ladrc', 'adrc', 'pid', or 'oracle': PD with the
+    true disturbance fed forward); ``seed``/``wind`` override the mission's (as ``mavadrc fly``'s
+    options do).  ``vehicle_options``: extra :class:`SimVehicle` keywords.
+    """
+    kind = kind or mission.controller.kind
+    oracle = kind == "oracle"
+    seed = mission.seed if seed is None else seed
+    spec = mission.controller
+    v, h, per, lag, hover = vehicle_of(mission, seed, wind, vehicle_options)
+    dt = v.physics_dt
     if oracle:  # the PD law with the oracle's own gains (a spec of another kind flies defaults)
         spec = dataclasses.replace(spec, kind="pd")
     ctrl = make_controller(spec, hover_thrust=hover, kind="pd" if oracle else kind)

@@ -63,7 +63,8 @@ from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
 # the vehicle's own attitude loop when a scenario asks for the one matching the controller
-MATCHING_ATTITUDE = {"pd": "pd", "adrc": "adrc", "ladrc": "ladrc", "pid": "px4", "oracle": "px4"}
+MATCHING_ATTITUDE = {"pd": "pd", "adrc": "adrc", "ladrc": "ladrc", "pid": "px4", "oracle": "px4",
+                     "native": "px4"}
 #: a run whose thrust sits at a limit for more than this share of the tracking window is
 #: reported infeasible (the vehicle cannot do what the scenario asks)
 SATURATION_SHARE = 0.10

@@ -313,7 +313,8 @@ def summary_table(exp, records):
     names = [c.name for c in exp.controllers]
     title = "RMS error after settling (m)"
     w = max([len(sc.name) for sc in exp.scenarios] + [len(title)])
-    lines = ["", f"  {title:<{w}}  " + "".join(f"{n:>14}" for n in names)]
+    cw = max([13] + [len(n) for n in names]) + 1  # a column: its name and a space before it
+    lines = ["", f"  {title:<{w}}  " + "".join(f"{n:>{cw}}" for n in names)]
     for sc in exp.scenarios:
         cells = []
         for n in names:
@@ -321,7 +322,7 @@ def summary_table(exp, records):
             m, _ = stat(recs, "after_settle.rms_error_m")
             cells.append(("x " if not feasible(recs) else "") + (f"{m:.4f}" if math.isfinite(m)
                                                                  else "-"))
-        lines.append(f"  {sc.name:<{w}}  " + "".join(f"{c:>14}" for c in cells))
+        lines.append(f"  {sc.name:<{w}}  " + "".join(f"{c:>{cw}}" for c in cells))
     lines.append("  (x: infeasible: thrust saturated or the run stopped at a safety limit)")
     return "\n".join(lines)
 
