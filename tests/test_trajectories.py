@@ -404,6 +404,7 @@ def test_by_name_lists_and_overrides():
         "thesis_spiral_pd",
         "thesis_spiral",
         "figure_eight",
+        "figure_eight_vertical",
     }
     for name in list_names():
         ref = by_name(name).sample(1.0)
