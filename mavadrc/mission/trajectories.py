@@ -402,9 +402,10 @@ class FigureEight(_Planar):
         elif self.heading == 0.0:  # along is north, across is east
             out = list(shape)
         else:
-            c, s = self._cs
-            rot = np.array([[c, s], [-s, c]])  # row vector (along, across) -> (north, east)
-            out = [q @ rot for q in shape]
+            c, s = self._cs  # (along, across) -> (north, east), element by element: a
+            # matrix product rounds one row differently from many
+            out = [np.stack([q[:, 0] * c - q[:, 1] * s, q[:, 0] * s + q[:, 1] * c], axis=1)
+                   for q in shape]
         out[0] = self.center + out[0]
         return tuple(out)
 
