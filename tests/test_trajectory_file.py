@@ -29,7 +29,7 @@ def write_csv(path, columns, rows, comment=None):
 
 def sine_rows(step=0.05, end=8.0):
     """north = sin t, east = 0.5 cos 2t, altitude = 2 + 0.3 sin t, sampled every ``step``."""
-    t = np.linspace(0.0, end, int(round(end / step)) + 1)
+    t = np.linspace(0.0, end, round(end / step) + 1)
     return t, [(ti, math.sin(ti), 0.5 * math.cos(2 * ti), 2.0 + 0.3 * math.sin(ti)) for ti in t]
 
 
@@ -146,7 +146,7 @@ def test_the_rows_frame_is_the_waypoints_frame(tmp_path):
                           "speed: 1}", 1.875 * math.sqrt(5.0))):
         (tmp_path / "m.yaml").write_text(text.replace("SEGMENT", seg))
         traj, phases = load_mission(tmp_path / "m.yaml").build_trajectory(origin)
-        start = dict((name, t0) for t0, name in phases)[kind]
+        start = {name: t0 for t0, name in phases}[kind]
         got[kind] = traj.sample(start + after).pos
     np.testing.assert_allclose(got["file"], origin + [1.0, 2.0, -3.0], atol=1e-12)
     np.testing.assert_allclose(got["waypoints"], origin + [1.0, 2.0, -3.0], atol=1e-12)
@@ -203,7 +203,7 @@ def test_a_file_segment_flies_from_the_mission_folder(tmp_path):
     traj, phases = m.build_trajectory()
     names = [name for _, name in phases]
     assert names == ["takeoff", "transit to file", "file", "transit to land", "land"]
-    start = dict((name, t0) for t0, name in phases)["file"]
+    start = {name: t0 for t0, name in phases}["file"]
     assert traj.sample(start).pos == pytest.approx([0.0, 0.5, -1.0], abs=1e-12)
     traj, phases = mission_with(tmp_path, rows, extra="join: direct, ").build_trajectory()
     assert [name for _, name in phases][:2] == ["takeoff", "file"]
@@ -297,7 +297,7 @@ def test_a_missing_file_and_a_yaw_given_twice_are_refused(tmp_path):
         mission_with(tmp_path, rows, columns=HEADER + ",yaw_deg", extra="yaw_deg: 20, ")
     assert "file.yaw_deg: the file has a yaw_deg column" in str(e.value)
     traj, phases = mission_with(tmp_path, line_rows(), extra="yaw_deg: 90, ").build_trajectory()
-    start = dict((name, t0) for t0, name in phases)["file"]
+    start = {name: t0 for t0, name in phases}["file"]
     assert traj.sample(start + 0.5).yaw == pytest.approx(math.pi / 2)
 
 
@@ -353,7 +353,7 @@ def test_a_lissajous_segment_defaults_to_where_the_last_one_ended(tmp_path):
         "lissajous: {a: [1, 0.5, 0.2], omega: [0.5, 1, 1.5], phase_deg: [0, 90, 0], "
         "center: [1, 0], duration: 10, yaw_deg: 45}")))
     traj, phases = load_mission(tmp_path / "m.yaml").build_trajectory()
-    start = dict((name, t0) for t0, name in phases)["lissajous"]
+    start = {name: t0 for t0, name in phases}["lissajous"]
     ref = traj.sample(start)
     assert ref.pos == pytest.approx([1.0, 0.5, -2.0], abs=1e-12)  # altitude: the takeoff's
     assert ref.yaw == pytest.approx(math.pi / 4)
@@ -397,7 +397,7 @@ def test_the_vertical_eight_flies_the_same_as_a_lissajous_and_as_a_file(tmp_path
     from mavadrc.fast.inprocess import L_POS
 
     eight, t_log, err = runs["figure_eight"]
-    start = dict((name, t0) for t0, name in eight.phases)["figure_eight"]
+    start = {name: t0 for t0, name in eight.phases}["figure_eight"]
     on = (t_log >= start) & (t_log <= start + 4 * math.pi)
     assert err[on].max() < 0.15, err[on].max()
     np.testing.assert_array_equal(runs["lissajous"][0].log, eight.log)
