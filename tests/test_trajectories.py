@@ -11,6 +11,7 @@ from mavadrc.mission.trajectories import (
     FigureEight,
     Hover,
     Land,
+    Lissajous,
     Reference,
     Sequence,
     Spiral,
@@ -22,6 +23,21 @@ from mavadrc.mission.trajectories import (
 
 H = 1e-6  # finite-difference step (s); small so jerk steps at waypoint joins stay < TOL
 TOL = 1e-5  # analytic vs central difference
+
+
+def _file(given):
+    """A trajectory file's reference, its table made in memory: positions and yaw of a 3-D
+    curve every 0.25 s, or (``given``) random velocities and accelerations beside them."""
+    from mavadrc.mission.trajectory_file import FileTrajectory, Table
+
+    t = np.arange(41) * 0.25
+    cols = {"t": t, "north": 2.0 * np.sin(0.7 * t), "east": np.cos(0.4 * t) - 1.0,
+            "altitude": 2.0 + 0.5 * np.sin(1.1 * t), "yaw_deg": 50.0 * t}
+    if given:
+        rng = np.random.default_rng(3)
+        for name in ("v_north", "v_east", "v_up", "a_north", "a_east", "a_up"):
+            cols[name] = rng.normal(0.0, 1.0, t.size)
+    return FileTrajectory(Table("<memory>", cols, np.arange(t.size) + 2, 1))
 
 
 def _mission():
@@ -49,6 +65,15 @@ CASES = {
     "spiral_reverse_tangent": lambda: Spiral(omega=-0.3, yaw="tangent"),
     "figure_eight_tangent": lambda: FigureEight(5.0, 12.0, 2.0, center=(3.0, 4.0), yaw="tangent"),
     "figure_eight_const": lambda: by_name("figure_eight"),
+    "figure_eight_heading_tangent": lambda: FigureEight(4.0, 10.0, 2.0, b=1.5, heading=2.5,
+                                                        yaw="tangent"),
+    "figure_eight_vertical": lambda: by_name("figure_eight_vertical"),
+    "figure_eight_vertical_heading": lambda: FigureEight(2.0, 8.0, 3.0, b=1.0, plane="vertical",
+                                                         heading=-0.8, yaw=1.0, duration=20.0),
+    "lissajous": lambda: Lissajous([2.0, 1.0, 0.5], [0.5, 1.2, 0.9], 2.0, center=(1.0, -2.0),
+                                   phase=(0.3, -1.0, 2.0), yaw=-2.0, duration=25.0),
+    "file_spline_yaw": lambda: _file(False),
+    "file_given": lambda: _file(True),
     "waypoints_speed_yaws": lambda: Waypoints(
         [[0, 0, -1], [5, 0, -2], [5, 6, -2], [-1, 2, -4]],
         speed=2.0,
@@ -229,6 +254,37 @@ def test_figure_eight_is_a_closed_gerono_lemniscate():
     np.testing.assert_array_equal(pos[:, 2], -4.0)
 
 
+def test_the_vertical_eight_is_neural_flys_and_a_lissajous():
+    """figure_eight_vertical: north = 1.25 sin t, altitude = 2 + 0.75 sin 2t; any vertical eight
+    is the Lissajous figure with rates w and 2w along its heading and up."""
+    t = np.linspace(0.0, 2 * math.pi, 501)
+    pos, vel, acc, yaw, _ = by_name("figure_eight_vertical").sample_many(t)
+    np.testing.assert_allclose(pos[:, 0], 1.25 * np.sin(t), atol=1e-12)
+    np.testing.assert_array_equal(pos[:, 1], 0.0)
+    np.testing.assert_allclose(-pos[:, 2], 2.0 + 0.75 * np.sin(2 * t), atol=1e-12)
+    np.testing.assert_allclose(-vel[:, 2], 1.5 * np.cos(2 * t), atol=1e-12)
+    np.testing.assert_allclose(-acc[:, 2], -3.0 * np.sin(2 * t), atol=1e-12)
+    assert not np.signbit(np.r_[pos[:, 1], vel[:, 1], acc[:, 1]]).any()  # no -0.0 east
+    np.testing.assert_array_equal(yaw, 0.0)
+    h, w = 0.6, 2 * math.pi / 9.0
+    eight = FigureEight(3.0, 9.0, 2.5, center=(1.0, 2.0), b=0.9, plane="vertical", heading=h)
+    phase = [0.0 if math.cos(h) > 0 else math.pi, 0.0 if math.sin(h) > 0 else math.pi, 0.0]
+    liss = Lissajous([3.0 * abs(math.cos(h)), 3.0 * abs(math.sin(h)), 0.9], [w, w, 2 * w], 2.5,
+                     center=(1.0, 2.0), phase=phase)
+    for got, want in zip(eight.sample_many(t), liss.sample_many(t)):
+        np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+def test_the_heading_turns_the_horizontal_eight():
+    """With heading h the eight's long axis points to h: the same eight as heading 0, turned."""
+    t = np.linspace(0.0, 10.0, 301)
+    plain = FigureEight(4.0, 10.0, 2.0, b=1.5).sample_many(t)[0]
+    turned = FigureEight(4.0, 10.0, 2.0, b=1.5, heading=math.pi / 2).sample_many(t)[0]
+    np.testing.assert_allclose(turned[:, 0], -plain[:, 1], atol=1e-12)  # across: to the south
+    np.testing.assert_allclose(turned[:, 1], plain[:, 0], atol=1e-12)  # along: to the east
+    assert np.abs(plain[:, 1]).max() == pytest.approx(1.5, rel=1e-3)
+
+
 POINTS = np.array([[0, 0, -2], [10, 0, -2], [10, 4, -5], [0, 0, -1], [3, 3, -3]], dtype=float)
 
 
@@ -404,6 +460,7 @@ def test_by_name_lists_and_overrides():
         "thesis_spiral_pd",
         "thesis_spiral",
         "figure_eight",
+        "figure_eight_vertical",
     }
     for name in list_names():
         ref = by_name(name).sample(1.0)
@@ -439,6 +496,17 @@ BAD = [
     (lambda: Spiral(z0=NAN), "altitude"),
     (lambda: FigureEight(0.0, 10.0, 1.0), "a"),
     (lambda: FigureEight(5.0, -10.0, 1.0), "period"),
+    (lambda: FigureEight(5.0, 10.0, 1.0, b=0.0), "b"),
+    (lambda: FigureEight(5.0, 10.0, 1.0, plane="sideways"), "plane"),
+    (lambda: FigureEight(5.0, 10.0, 1.0, plane="vertical", yaw="tangent"), "tangent"),
+    (lambda: FigureEight(5.0, 10.0, 1.0, plane="vertical", b=1.5), "altitude"),
+    (lambda: FigureEight(5.0, 10.0, 1.0, heading=NAN), "heading"),
+    (lambda: Lissajous([1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 2.0), "a"),
+    (lambda: Lissajous([1.0, 1.0, 0.0], [1.0, 1.0], 2.0), "omega"),
+    (lambda: Lissajous([1.0, 1.0, 0.0], [1.0, -1.0, 1.0], 2.0), "omega"),
+    (lambda: Lissajous([1.0, 1.0, 3.0], [1.0, 1.0, 1.0], 2.0), "altitude"),
+    (lambda: Lissajous([1.0, 1.0, 0.0], [1.0, 1.0, 1.0], 2.0, yaw="tangent"), "yaw"),
+    (lambda: Lissajous([1.0, 1.0, 0.0], [1.0, 1.0, 1.0], 2.0, phase=[0, NAN, 0]), "phase"),
     (lambda: Hover([0, 0, NAN]), "position"),
     (lambda: Hover([0, 0]), "position"),
     (lambda: Hover([0, 0, -1], duration=-1.0), "duration"),

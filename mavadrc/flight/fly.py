@@ -256,6 +256,12 @@ def write_effective(folder, mission, summary, bundled):
     if not isinstance(doc, dict) or "trajectory" not in doc:
         return
     doc["controller"] = controller
+    for item in doc["trajectory"] if isinstance(doc["trajectory"], list) else []:
+        # a trajectory file is read from the mission's folder: from the record's, it is named
+        # by its full path
+        spec = item.get("file") if isinstance(item, dict) else None
+        if isinstance(spec, dict) and isinstance(spec.get("path"), str):
+            spec["path"] = str((Path(mission.source).parent / spec["path"]).resolve())
     if bundled:
         sim = doc.get("sim") if isinstance(doc.get("sim"), dict) else {}
         doc["sim"] = {**sim, "seed": int(mission.seed)}

@@ -28,9 +28,11 @@ from mavadrc.control.kernels import AGE_MAX
 from mavadrc.control.learn import TAU_S as DRAG_LEARN_S
 from mavadrc.control.position import DRAG_MAX, THRUST_ESTIMATE_S
 from mavadrc.mission import trajectories as T
+from mavadrc.mission import trajectory_file as TF
 from mavadrc.mission.identification import ALTITUDE
 from sim.sensors import CLOCK_RATES, WANDER_CORNER_HZ
-from sim.yamlio import ConfigError, Section, config_path, described, did_you_mean, load_yaml
+from sim.yamlio import (ConfigError, Section, closest, config_path, described, did_you_mean,
+                        load_yaml)
 
 KINDS = ("adrc", "ladrc", "pd", "pid", "native")
 #: what a controller's ``thrust_tilt`` may say (:class:`ControllerSpec`)
@@ -42,8 +44,8 @@ TAKEOFFS = ("safe", "pid")
 #: estimate a few tenths of a metre off (PX4 SIH's was 0.29-0.38 m) meets the ground slowly
 FINAL_HEIGHT = 0.5
 FINAL_SPEED = 0.3
-SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "waypoints", "land", "named",
-            "identify")
+SEGMENTS = ("takeoff", "hover", "circle", "spiral", "figure_eight", "lissajous", "waypoints", "file",
+            "land", "named", "identify")
 
 
 @dataclass
@@ -246,7 +248,16 @@ def _segment(kind, s, here, m):
     if kind == "figure_eight":
         return [(T.FigureEight(s["a"], s["period"], s.get("altitude", alt_here),
                                center=tuple(s.get("center", (0.0, 0.0))), yaw=_yaw(s, None),
-                               duration=s["duration"]), "figure_eight")]
+                               duration=s["duration"], b=s.get("b"),
+                               plane=s.get("plane", "horizontal"),
+                               heading=math.radians(s.get("heading_deg", 0.0))), "figure_eight")]
+    if kind == "lissajous":
+        return [(T.Lissajous(s["a"], s["omega"], s.get("altitude", alt_here),
+                             center=tuple(s.get("center", (0.0, 0.0))),
+                             phase=np.radians(s.get("phase_deg", (0.0, 0.0, 0.0))),
+                             yaw=_yaw(s, None), duration=s["duration"]), "lissajous")]
+    if kind == "file":
+        return [(s["trajectory"], "file")]
     if kind == "waypoints":
         pts = [here] + [_ned(*p) for p in s["points"]]
         return [(T.Waypoints(pts, speed=s["speed"], yaw=_yaw(s, None), dwell=s.get("dwell", 0.0)),
@@ -331,7 +342,11 @@ _SEG_KEYS = {
     "spiral": {"radius": "pos", "omega": "num", "z0": "nonneg", "climb": "num", "yaw_deg": "num",
                "duration": "pos", "center": "vec2"},
     "figure_eight": {"a": "pos", "period": "pos", "altitude": "nonneg", "center": "vec2",
-                     "yaw_deg": "num", "yaw": "tangent", "duration": "pos"},
+                     "yaw_deg": "num", "yaw": "tangent", "duration": "pos", "b": "pos",
+                     "plane": "plane", "heading_deg": "num"},
+    "lissajous": {"a": "vec3+", "omega": "vec3+", "phase_deg": "vec3", "altitude": "nonneg",
+                  "center": "vec2", "yaw_deg": "num", "duration": "pos"},
+    "file": {"path": "file", "yaw_deg": "num"},
     "waypoints": {"points": "points", "speed": "pos", "dwell": "nonneg", "yaw_deg": "num",
                   "yaw": "tangent"},
     "named": {"name": "str", "params": "map", "duration": "pos"},
@@ -341,10 +356,12 @@ _SEG_KEYS = {
 #: can mean (a typo such as a 1e9 s hover is refused before anything is computed)
 _MAX = {"amplitude": 3.0, "leg_speed": 3.0, "altitude": 1000.0, "speed": 40.0, "radius": 2000.0, "duration": 4 * 3600.0, "a": 2000.0,
         "period": 3600.0, "dwell": 3600.0, "laps": 1000.0, "z0": 1000.0, "omega": 10.0,
-        "climb": 10.0, "climb_rate": 10.0}
+        "climb": 10.0, "climb_rate": 10.0, "b": 2000.0, "heading_deg": 360.0,
+        "phase_deg": 360.0}
 _REQUIRED = {
     "takeoff": ("altitude",), "hover": ("duration",), "circle": ("radius", "speed"),
     "spiral": ("duration",), "figure_eight": ("a", "period", "duration"),
+    "lissajous": ("a", "omega", "duration"), "file": ("path",),
     "waypoints": ("points", "speed"), "named": ("name",),
 }
 
@@ -383,6 +400,17 @@ def _read_segment(sec):
             spec[key] = tuple(inner.vector(key, 2))
         elif what == "vec3":
             spec[key] = tuple(inner.vector(key, 3))
+            if top is not None:
+                inner.check(key, max(abs(x) for x in spec[key]) <= top,
+                            f"each item must be within +-{top:g} (got {list(spec[key])})")
+        elif what == "vec3+":
+            spec[key] = tuple(inner.vector(key, 3, ge=0.0))
+            inner.check(key, max(spec[key]) <= top,
+                        f"each item must be <= {top:g} (got {list(spec[key])})")
+        elif what == "plane":
+            spec[key] = inner.string(key, choices=T.FigureEight.PLANES)
+        elif what == "file":
+            spec[key], spec["trajectory"] = _read_file(inner, key)
         elif what == "map":
             spec[key] = dict(inner.raw(key))
         elif what == "points":
@@ -397,8 +425,51 @@ def _read_segment(sec):
             spec[key] = [tuple(map(float, p)) for p in pts]
     if inner.has("join"):
         spec["join"] = inner.string("join", choices=("transit", "direct"))
+    if kind == "file":
+        inner.check("yaw_deg", "yaw_deg" not in spec or not spec["trajectory"].given["yaw"],
+                    "the file has a yaw_deg column, which sets the heading")
+        if "yaw_deg" in spec:
+            spec["trajectory"] = TF.FileTrajectory(spec["trajectory"].table,
+                                                   yaw=math.radians(spec["yaw_deg"]))
     inner.finish()
     return kind, spec, inner
+
+
+def _read_file(inner, key):
+    """A file segment's path, resolved against the folder of the file it is written in (the
+    mission's), and the trajectory it holds; a ConfigError naming the mission's line and the
+    file's line, row and column when the file cannot be flown."""
+    given = inner.string(key)
+    source = Path(inner.source)
+    base = source.parent if source.is_file() else Path(".")
+    path = Path(given).expanduser()
+    path = path if path.is_absolute() else base / path
+    if not path.is_file():
+        here = path.parent
+        names = [p.name for p in here.iterdir() if p.is_file()] if here.is_dir() else []
+        near = closest(path.name, names)
+        hint = f"; did you mean {str(Path(given).with_name(near))!r}?" if near else ""
+        inner.error(key, f"no such file {str(path)!r} (a relative path is read from the folder "
+                         f"of {source.name}){hint}")
+    try:
+        return str(path), TF.FileTrajectory(TF.read_table(path))
+    except TF.TrajectoryFileError as exc:
+        inner.error(key, str(exc))
+
+
+def _check_files(m):
+    """Each file segment against the mission's geofence, altitude and speed limits and the
+    acceleration its tilt limit allows, naming the file's row and column."""
+    sf = m.safety
+    for kind, spec, inner in m.segments:
+        if kind != "file":
+            continue
+        try:
+            spec["trajectory"].check_limits(
+                sf.geofence_north, sf.geofence_east, (sf.altitude_min, sf.altitude_max),
+                sf.max_speed, TF.G * math.tan(math.radians(m.controller.tilt_max_deg)))
+        except TF.TrajectoryFileError as exc:
+            inner.error("path", str(exc))
 
 
 def read_controller(sec, kinds=None):
@@ -737,6 +808,7 @@ def mission_from_section(top, source, text, default_name="mission", require_land
     if m.vehicle is not None and vp.motor_thrust_curve is not None:
         m.hover_thrust = _bundled_hover(vp, m.autopilot)
     m.safety = _read_safety(top.section("safety"), Safety()) if top.has("safety") else Safety()
+    _check_files(m)
     if top.has("logging"):
         lg = top.section("logging")
         m.out = lg.string("out", "runs")

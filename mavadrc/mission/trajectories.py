@@ -32,6 +32,9 @@ to NED by z = -z_up and its x, y are read as north, east):
     Hold 1 m above the origin, yaw 0.
 ``figure_eight``
     Lemniscate of Gerono, +-5 m north by +-2.5 m east, 20 s per loop, 2 m altitude, yaw 0.
+``figure_eight_vertical``
+    Neural-Fly's benchmark eight in the north-up plane: north = 1.25 sin t, altitude =
+    2 + 0.75 sin 2t (1 rad/s, a loop in 2 pi s), yaw 0.
 
 Missions chain finite pieces with ``Sequence([Takeoff(...), Waypoints(...), Circle(...,
 laps=2), Land(...)])``; a Sequence refuses position jumps at its joins.
@@ -52,6 +55,7 @@ __all__ = [
     "Circle",
     "Spiral",
     "FigureEight",
+    "Lissajous",
     "Waypoints",
     "Takeoff",
     "Land",
@@ -331,13 +335,21 @@ class Spiral(Circle):
 
 
 class FigureEight(_Planar):
-    """Lemniscate of Gerono: north = cn + a sin(th), east = ce + (a/2) sin(2 th).
+    """Lemniscate of Gerono: along = a sin(th), across = b sin(2 th), th = w t, w = 2 pi / period.
 
-    With th = w t, w = 2 pi / period, it starts at the centre crossing heading north-east and
-    spans +-a north and +-a/2 east. The horizontal speed a w sqrt(cos^2 th + cos^2 2th) never
-    vanishes, so 'tangent' yaw is smooth everywhere; the peak speed is sqrt(2) a w at the
-    crossing.
+    ``plane='horizontal'`` (the default): ``along`` points to ``heading`` (radians from north,
+    default 0) and ``across`` 90 deg to its right, so with heading 0 north = cn + a sin(th),
+    east = ce + b sin(2 th). It starts at the centre crossing, spans +-a along by +-b across
+    (b defaults to a/2), and its horizontal speed w sqrt(a^2 cos^2 th + 4 b^2 cos^2 2th)
+    never vanishes, so 'tangent' yaw is smooth everywhere.
+
+    ``plane='vertical'``: ``along`` is horizontal, towards ``heading``, and ``across`` is up:
+    altitude = altitude + b sin(2 th), the eight of Neural-Fly's benchmark (a = 1.25 m,
+    b = 0.75 m, w = 1 rad/s: :func:`by_name` ``figure_eight_vertical``). Its horizontal speed
+    stops at each end, so yaw is a constant there; its lowest point is b below ``altitude``.
     """
+
+    PLANES = ("horizontal", "vertical")
 
     def __init__(
         self,
@@ -347,21 +359,110 @@ class FigureEight(_Planar):
         center=(0.0, 0.0),
         yaw=None,
         duration: float = math.inf,
+        b: float | None = None,
+        plane: str = "horizontal",
+        heading: float = 0.0,
     ):
-        self.a = _number("FigureEight", "a", a, positive=True)
-        self.period = _number("FigureEight", "period", period, positive=True)
-        self.center = _vector("FigureEight", "center", center, 2)
+        owner = "FigureEight"
+        self.a = _number(owner, "a", a, positive=True)
+        self.b = 0.5 * self.a if b is None else _number(owner, "b", b, positive=True)
+        self.period = _number(owner, "period", period, positive=True)
+        self.center = _vector(owner, "center", center, 2)
+        self.heading = _number(owner, "heading", heading)
+        if plane not in self.PLANES:
+            raise ValueError(f"{owner}: plane must be one of {', '.join(self.PLANES)}, "
+                             f"got {plane!r}")
+        self.plane = plane
         self.omega = 2.0 * math.pi / self.period
-        self._init_vertical("FigureEight", altitude, 0.0, yaw, duration)
+        self._init_vertical(owner, altitude, 0.0, yaw, duration)
+        if plane == "vertical":
+            if self.yaw == "tangent":
+                raise ValueError(f"{owner}: yaw 'tangent' needs the horizontal plane (a "
+                                 "vertical eight's horizontal speed stops at each end)")
+            if self.altitude < self.b:
+                raise ValueError(f"{owner}: a vertical eight reaches b = {self.b:g} m below its "
+                                 f"altitude {self.altitude:g} m, under the ground")
+        self._cs = (math.cos(self.heading), math.sin(self.heading))
 
-    def _horizontal(self, t):
-        a, w = self.a, self.omega
+    def _shape(self, t):
+        """(along, across) and their first two derivatives, each (N, 2)."""
+        a, b, w = self.a, self.b, self.omega
         th = w * t
         s1, c1, s2, c2 = np.sin(th), np.cos(th), np.sin(2.0 * th), np.cos(2.0 * th)
-        xy = self.center + np.stack([a * s1, 0.5 * a * s2], axis=1)
-        vxy = a * w * np.stack([c1, c2], axis=1)
-        axy = -a * w * w * np.stack([s1, 2.0 * s2], axis=1)
-        return xy, vxy, axy
+        return (np.stack([a * s1, b * s2], axis=1),
+                w * np.stack([a * c1, 2.0 * b * c2], axis=1),
+                -w * w * np.stack([a * s1, 4.0 * b * s2], axis=1))
+
+    def _horizontal(self, t):
+        shape = self._shape(t)
+        if self.plane == "vertical":  # along only; across is added to the altitude in _eval
+            c, s = self._cs
+            # (+ 0.0: no -0.0 on an axis the eight does not move along)
+            out = [np.stack([q[:, 0] * c + 0.0, q[:, 0] * s + 0.0], axis=1) for q in shape]
+        elif self.heading == 0.0:  # along is north, across is east
+            out = list(shape)
+        else:
+            c, s = self._cs  # (along, across) -> (north, east), element by element: a
+            # matrix product rounds one row differently from many
+            out = [np.stack([q[:, 0] * c - q[:, 1] * s, q[:, 0] * s + q[:, 1] * c], axis=1)
+                   for q in shape]
+        out[0] = self.center + out[0]
+        return tuple(out)
+
+    def _eval(self, t):
+        out = super()._eval(t)
+        if self.plane == "vertical":
+            up, vup, aup = (q[:, 1] for q in self._shape(t))
+            pos, vel, acc = out[:3]
+            pos[:, 2] -= up
+            vel[:, 2] = 0.0 - vup
+            acc[:, 2] = 0.0 - aup
+        return out
+
+
+class Lissajous(Trajectory):
+    """A Lissajous figure in three axes: with (an, ae, au) = ``a``, (wn, we, wu) = ``omega``
+    (rad/s) and (pn, pe, pu) = ``phase`` (rad),
+
+        north = cn + an sin(wn t + pn), east = ce + ae sin(we t + pe),
+        altitude = altitude + au sin(wu t + pu).
+
+    An amplitude or a rate of 0 keeps that axis still (at its offset a sin(p)). The yaw is a
+    constant (None: 0): the horizontal speed of such a figure may stop, where a heading along
+    the path is not defined. Its lowest point is ``au`` below ``altitude``, which may not be
+    under the ground.
+    """
+
+    def __init__(self, a, omega, altitude: float, center=(0.0, 0.0), phase=(0.0, 0.0, 0.0),
+                 yaw=None, duration: float = math.inf):
+        owner = "Lissajous"
+        self.a = _vector(owner, "a", a, 3)
+        self.omega = _vector(owner, "omega", omega, 3)
+        self.phase = _vector(owner, "phase", phase, 3)
+        if np.any(self.a < 0.0) or np.any(self.omega < 0.0):
+            raise ValueError(f"{owner}: a and omega must be >= 0 (a sign is a phase of pi)")
+        self.center = _vector(owner, "center", center, 2)
+        self.altitude = _number(owner, "altitude", altitude)
+        if self.altitude < self.a[2]:
+            raise ValueError(f"{owner}: the figure reaches a_up = {self.a[2]:g} m below its "
+                             f"altitude {self.altitude:g} m, under the ground")
+        if yaw == "tangent":
+            raise ValueError(f"{owner}: yaw must be a number (a Lissajous figure's horizontal "
+                             "speed may stop, where 'tangent' is not defined)")
+        self.yaw = _yaw_mode(owner, yaw)
+        self.duration = _duration(owner, duration)
+        # NED offset and amplitude: altitude up is -z
+        self._offset = np.array([self.center[0], self.center[1], -self.altitude])
+        self._amp = self.a * np.array([1.0, 1.0, -1.0])
+
+    def _eval(self, t):
+        n = t.shape[0]
+        th = t[:, None] * self.omega + self.phase
+        s, c = np.sin(th), np.cos(th)
+        pos = self._offset + self._amp * s
+        vel = self._amp * self.omega * c + 0.0  # (+ 0.0: no -0.0 on a still axis)
+        acc = 0.0 - self._amp * self.omega * self.omega * s
+        return pos, vel, acc, np.full(n, self.yaw), np.zeros(n)
 
 
 # --------------------------------------------------------------------------- waypoints
@@ -737,6 +838,10 @@ _NAMED = {
         dict(radius=10.0, omega=0.5, z0=1.0, climb=0.1, yaw=math.pi / 6.0),
     ),
     "figure_eight": (FigureEight, dict(a=5.0, period=20.0, altitude=2.0, yaw=0.0)),
+    "figure_eight_vertical": (
+        FigureEight,
+        dict(a=1.25, b=0.75, period=2.0 * math.pi, altitude=2.0, yaw=0.0, plane="vertical"),
+    ),
 }
 
 
