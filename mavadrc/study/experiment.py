@@ -59,6 +59,7 @@ import numpy as np
 
 from mavadrc.flight.record import attitude_oscillation, error_figures
 from mavadrc.mission.config import KINDS, mission_from_section, read_controller
+from mavadrc.study.sitl_config import read_scenario_sitl, read_sitl_section
 from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
@@ -98,6 +99,10 @@ class Scenario:
     #: every series the scenario is a point of (``series`` is the first): a nominal run can
     #: be the shared point of several series
     points: list = field(default_factory=list)
+    #: what the scenario needs of a SITL process (``compare --sitl``): {"autopilot": None or
+    #: px4|ardupilot, "frame": quad|hexa, "params": {NAME: value}}
+    sitl: dict = field(default_factory=lambda: {"autopilot": None, "frame": "quad",
+                                                "params": {}})
 
     def point(self, name):
         """The scenario's point ({name, value, unit}) of series ``name``, or None."""
@@ -134,6 +139,8 @@ class Experiment:
     seeds: list
     goals: list
     breaks: list
+    #: the experiment's ``sitl:`` section: {autopilot: {"path", "params"}} (``compare --sitl``)
+    sitl: dict = field(default_factory=dict)
 
     def runs(self, seeds=None):
         """Every (scenario index, controller index, seed) of the matrix, scenario-major."""
@@ -187,7 +194,7 @@ def _merged(defaults, item, skip=()):
 
 #: scenario keys that belong to the experiment, not to the scenario's mission
 SCENARIO_KEYS = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller",
-                 "sample_rate_hz", "input_model_scale")
+                 "sample_rate_hz", "input_model_scale", "sitl")
 #: the physics rate of the bundled vehicle (Hz): a scenario's sample rate divides it
 PHYSICS_RATE_HZ = 1000.0
 
@@ -272,6 +279,7 @@ def experiment_from_text(source, text):
                       < 1e-9, f"must divide the vehicle's {PHYSICS_RATE_HZ:g} Hz physics rate "
                               "(25, 50, 100, 125, 200, 250, 500 Hz ...)")
         model_scale = sec.number("input_model_scale", 1.0, gt=0.0, le=10.0)
+        sitl = read_scenario_sitl(sec)
         # the rest is a mission (without a controller, which the matrix supplies); its own
         # section refuses unknown keys
         msec = Section(_merged(defaults, raw, SCENARIO_KEYS), source, where, line=sec.line())
@@ -283,7 +291,7 @@ def experiment_from_text(source, text):
             sec.error("attitude_controller", "match flies other attitude loops than the PX4-like "
                                              "one sim.attitude_bandwidth_scale scales")
         scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note,
-                                  rate, model_scale, points))
+                                  rate, model_scale, points, sitl))
     if not scenarios:
         top.error("scenarios", "must list at least one scenario")
     goals = []
@@ -325,9 +333,10 @@ def experiment_from_text(source, text):
                      f"must be one of the series' values ({shown})")
         bs.finish()
         breaks.append(b)
+    sitl = read_sitl_section(top)
     top.finish()
     return Experiment(name, source, text, description, controllers, scenarios, seeds, goals,
-                      breaks)
+                      breaks, sitl)
 
 
 def goal_covers(g, name):
