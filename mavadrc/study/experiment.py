@@ -25,6 +25,8 @@ An experiment file (``configs/experiments/*.yaml``)::
         sample_rate_hz: 50        # every controller at 50 Hz here, one step per position sample
         input_model_scale: 2      # every observer's input model (input_lag) x2 of the truth
         sim: {mass_scale: 1.3}    # the vehicle against its file (mission keys, docs/flying.md)
+        sitl: {autopilot: ardupilot, frame: quad, params: {NAME: 1}}  # compare --sitl only:
+                                  # the autopilot the scenario is for, its frame and parameters
     goals:                        # claims the report checks, measured
       - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
          metric: after_settle.max_error_m, at_most: 0.05}
@@ -32,6 +34,9 @@ An experiment file (``configs/experiments/*.yaml``)::
          ratio_to: PD, at_most: 0.333, over: all}   # all: pooled over the scenarios;
                                                      # each (default): every scenario
       - {scenario: [nominal, "latency [24]0 ms"], ...}  # a list of name patterns
+    sitl:                         # compare --sitl: the builds and the parameters of every run
+      px4: {path: ~/PX4-Autopilot, params: {EKF2_HGT_REF: 2}}
+      ardupilot: {path: ~/ardupilot}
     breaks:                       # where a controller breaks along a series
       - {series: circle speed, metric: after_settle.max_error_m, above: 0.5}
       - {series: mass, metric: after_settle.max_error_m, above: 0.1, nominal: 1}
@@ -40,7 +45,8 @@ An experiment file (``configs/experiments/*.yaml``)::
 
 Each run is one mission flown by :func:`mavadrc.fast.fly.fly_inprocess` (the fast path) or, with
 ``via="mavlink"``, by ``mavadrc fly --lockstep`` against the bundled vehicle; both give the same
-record.  A record holds ``scenario``, ``controller``, ``seed`` and the error keys of a flight's
+record.  Against SITL processes (``compare --sitl``) runs are flown by
+:mod:`mavadrc.study.sitl_runs`.  A record holds ``scenario``, ``controller``, ``seed`` and the error keys of a flight's
 ``summary.json`` (``rms_error_m``, ``max_error_m``, ``rms_error_xyz_m``, ``max_error_xyz_m``, and
 ``after_settle``), plus the joining transient, control effort and saturation figures, and whether
 the scenario was feasible for it.

@@ -262,7 +262,9 @@ class Readiness:
 def prepare(sitl, params, timeout, say=None):
     """Set ``params`` ({NAME: value}) on the SITL of ``sitl`` (a started :class:`SitlProcess`),
     each read back, and wait until it can arm; SitlError after ``timeout`` s, or at once if the
-    process ends.  Returns {NAME: value read back}."""
+    process ends.  Returns ({NAME: value read back}, [names skipped]): the bundled vehicle skips
+    a parameter it does not have (the experiment's are meant for the real builds); a real SITL
+    without one is a SitlError."""
     from mavadrc.errors import LinkError
     from mavadrc.mavlink.dialect import M
     from mavadrc.mavlink.params import Params
@@ -297,10 +299,18 @@ def prepare(sitl, params, timeout, say=None):
                 ready.see(msg)
 
         par = Params(conn, _Target(system, plan.autopilot), recv)
-        values = {}
+        values, skipped = {}, []
         for name, value in params.items():
             try:
-                current = par.read(name, timeout=6.0, idle=sitl.check)
+                current = par.read(name, timeout=6.0 if not plan.bundled else 1.5,
+                                   idle=sitl.check)
+            except LinkError:
+                if plan.bundled:
+                    skipped.append(name)
+                    continue
+                raise SitlError(f"{plan.describe()} did not answer for parameter {name} (has "
+                                f"it one of that name?)") from None
+            try:
                 ptype = par.values[name].param_type
                 got = par.set(name, value, ptype, timeout=6.0, idle=sitl.check)
             except LinkError:
@@ -318,6 +328,6 @@ def prepare(sitl, params, timeout, say=None):
                 raise SitlError(f"{plan.describe()} could not arm after {timeout:g} s: "
                                 f"{ready.missing()}; its log: {sitl.log_path}")
             recv(0.5)
-        return values
+        return values, skipped
     finally:
         conn.close()

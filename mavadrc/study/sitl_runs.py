@@ -244,7 +244,7 @@ def fly_run(exp, i, j, seed, autopilot, given, out, ready_timeout, say):
     flight_out = run_dir / "flight"
     t0 = time.monotonic()
     with SitlProcess(plan, run_dir / "sitl") as sitl:
-        values = prepare(sitl, plan.params, ready_timeout)
+        values, skipped = prepare(sitl, plan.params, ready_timeout)
         ready_s = time.monotonic() - t0
         status = fly_flight(fly_command(mission_path, sitl.url, flight_out, timeout),
                             run_dir / "fly.log", timeout + 60.0)
@@ -261,7 +261,8 @@ def fly_run(exp, i, j, seed, autopilot, given, out, ready_timeout, say):
     base = {"scenario": sc.name, "group": sc.group, "controller": c.name, "kind": c.kind,
             "seed": int(seed), "via": "sitl", "autopilot": autopilot,
             "sitl": plan.describe(), "frame": plan.frame, "settle_s": sc.settle_s,
-            "params_set": values, "ready_s": round(ready_s, 1), "exit_status": status,
+            "params_set": values, "params_skipped": skipped, "ready_s": round(ready_s, 1),
+            "exit_status": status,
             "record_folder": str(folder), "run_key": key}
     if sc.series:
         base["series"] = dict(sc.series)
