@@ -177,8 +177,8 @@ def sitl_pid(out):
 @pytest.mark.slow
 @pytest.mark.realtime
 @pytest.mark.parametrize("kind,wait,said", [
-    ("armless", 8, "could not arm after 8 s: its pre-arm checks fail (SYS_STATUS) and it "
-                   "reports no position"),
+    ("armless", 8, ("could not arm after 8 s: its pre-arm checks fail (SYS_STATUS) and it "
+                    "reports no position")),
     ("silent", 3, "sent no heartbeat on udpin:127.0.0.1:")])
 def test_a_sitl_that_never_becomes_armable_is_said_and_stopped(tmp_path, stand_in, capsys,
                                                                kind, wait, said):
@@ -234,16 +234,15 @@ def flown(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sitl_runs")
     out = tmp / "out"
     stream = io.StringIO()
-    folder, exp, records = sitl_runs.compare_sitl(tiny(tmp), ["bundled=px4"], out=out,
-                                                  progress=False, stream=stream,
-                                                  ready_timeout=120.0)
+    _, _, records = sitl_runs.compare_sitl(tiny(tmp), ["bundled=px4"], out=out,
+                                           progress=False, stream=stream, ready_timeout=120.0)
     return tmp, out, records, stream.getvalue()
 
 
 @pytest.mark.slow
 @pytest.mark.realtime
 def test_each_run_leaves_its_record_with_the_truth_beside_the_estimate(flown):
-    tmp, out, records, said = flown
+    _, out, records, _ = flown
     assert [(r["controller"], r["seed"]) for r in records] == [("PD", 0), ("LADRC", 0)]
     for r in records:
         saved = json.loads((out / "runs" / "hover" / r["controller"] / "seed0" /
@@ -267,7 +266,7 @@ def test_each_run_leaves_its_record_with_the_truth_beside_the_estimate(flown):
 def test_the_same_command_skips_the_finished_runs(flown, monkeypatch, capsys):
     from mavadrc.cli.main import main
 
-    tmp, out, records, _ = flown
+    tmp, out, _, _ = flown
 
     def no_sitl(self):
         raise AssertionError("a finished run was flown again")

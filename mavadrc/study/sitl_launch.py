@@ -208,12 +208,17 @@ class _Target:
 
 
 def _connect(url, deadline, sitl):
+    import contextlib
+    import io
+
     from pymavlink import mavutil
 
     while True:
         try:
-            return mavutil.mavlink_connection(url, source_system=255, source_component=190,
-                                              autoreconnect=False)
+            # quiet: pymavlink prints each refused TCP attempt on stdout
+            with contextlib.redirect_stdout(io.StringIO()):
+                return mavutil.mavlink_connection(url, source_system=255, source_component=190,
+                                                  autoreconnect=False)
         except OSError:  # the SITL's TCP port not open yet
             sitl.check()
             if time.monotonic() > deadline:
