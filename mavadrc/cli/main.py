@@ -35,8 +35,12 @@ def _identify(args):
 
 
 def _compare(args):
-    from mavadrc.study import compare
+    from mavadrc.study import compare, sitl_runs
 
+    if sitl_runs.wants_sitl(args):
+        return sitl_runs.main(args)
+    if args.via is None:
+        args.via = "inprocess"
     return compare.main(args)
 
 
@@ -151,11 +155,20 @@ def build_parser():
                    help="local worker processes (default: one per core)")
     c.add_argument("--scheduler", default=None,
                    help="run on a Dask distributed cluster at this address (tcp://HOST:PORT)")
-    c.add_argument("--via", choices=("inprocess", "mavlink"), default="inprocess",
+    c.add_argument("--via", choices=("inprocess", "mavlink"), default=None,
                    help="inprocess (default): the fast path on the vehicle's kernels; mavlink: "
                         "each run flown over MAVLink against the bundled vehicle in lockstep "
                         "(its report has tables, no figures: they are drawn from the fast "
                         "path's logs)")
+    c.add_argument("--sitl", action="append", default=[], metavar="AUTOPILOT=PATH",
+                   help="fly every run against a fresh SITL process, one at a time, in real "
+                        "time: px4=PATH (PX4 SIH: its source tree or build/px4_sitl_default/"
+                        "bin/px4), ardupilot=PATH (ArduCopter SITL: its source tree or "
+                        "build/sitl/bin/arducopter), bundled (mavadrc sitl, as either "
+                        "autopilot) or bundled=px4|ardupilot; repeatable: each scenario flies "
+                        "on the autopilot its sitl: key names (docs/experiments.md)")
+    c.add_argument("--ready-timeout", type=float, default=180.0, metavar="S",
+                   help="with --sitl: seconds a SITL may take to become armable (default 180)")
     c.add_argument("--rerun-identical", action="store_true",
                    help="fly every seed even of scenarios the seed does not change (no "
                         "turbulence, no sensor noise); by default those fly once per controller "

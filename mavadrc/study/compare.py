@@ -263,7 +263,7 @@ def main(args):
     try:
         folder, exp, records = compare(args.experiment, out=args.out, seeds=args.seeds,
                                        workers=args.workers, scheduler=args.scheduler,
-                                       via=args.via, figures=not args.no_figures,
+                                       via=args.via or "inprocess", figures=not args.no_figures,
                                        progress=not args.quiet,
                                        rerun_identical=args.rerun_identical)
     except KeyboardInterrupt:

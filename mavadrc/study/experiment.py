@@ -25,6 +25,8 @@ An experiment file (``configs/experiments/*.yaml``)::
         sample_rate_hz: 50        # every controller at 50 Hz here, one step per position sample
         input_model_scale: 2      # every observer's input model (input_lag) x2 of the truth
         sim: {mass_scale: 1.3}    # the vehicle against its file (mission keys, docs/flying.md)
+        sitl: {autopilot: ardupilot, frame: quad, params: {NAME: 1}}  # compare --sitl only:
+                                  # the autopilot the scenario is for, its frame and parameters
     goals:                        # claims the report checks, measured
       - {scenario: "spiral in wind", controllers: [ADRC, LADRC],
          metric: after_settle.max_error_m, at_most: 0.05}
@@ -32,6 +34,9 @@ An experiment file (``configs/experiments/*.yaml``)::
          ratio_to: PD, at_most: 0.333, over: all}   # all: pooled over the scenarios;
                                                      # each (default): every scenario
       - {scenario: [nominal, "latency [24]0 ms"], ...}  # a list of name patterns
+    sitl:                         # compare --sitl: the builds and the parameters of every run
+      px4: {path: ~/PX4-Autopilot, params: {EKF2_HGT_REF: 2}}
+      ardupilot: {path: ~/ardupilot}
     breaks:                       # where a controller breaks along a series
       - {series: circle speed, metric: after_settle.max_error_m, above: 0.5}
       - {series: mass, metric: after_settle.max_error_m, above: 0.1, nominal: 1}
@@ -40,7 +45,8 @@ An experiment file (``configs/experiments/*.yaml``)::
 
 Each run is one mission flown by :func:`mavadrc.fast.fly.fly_inprocess` (the fast path) or, with
 ``via="mavlink"``, by ``mavadrc fly --lockstep`` against the bundled vehicle; both give the same
-record.  A record holds ``scenario``, ``controller``, ``seed`` and the error keys of a flight's
+record.  Against SITL processes (``compare --sitl``) runs are flown by
+:mod:`mavadrc.study.sitl_runs`.  A record holds ``scenario``, ``controller``, ``seed`` and the error keys of a flight's
 ``summary.json`` (``rms_error_m``, ``max_error_m``, ``rms_error_xyz_m``, ``max_error_xyz_m``, and
 ``after_settle``), plus the joining transient, control effort and saturation figures, and whether
 the scenario was feasible for it.
@@ -59,6 +65,7 @@ import numpy as np
 
 from mavadrc.flight.record import attitude_oscillation, error_figures
 from mavadrc.mission.config import KINDS, mission_from_section, read_controller
+from mavadrc.study.sitl_config import read_scenario_sitl, read_sitl_section
 from sim.yamlio import Section, YamlMap, choose, config_path, described, did_you_mean, load_yaml
 
 CONTROLLER_KINDS = KINDS + ("oracle",)
@@ -99,6 +106,10 @@ class Scenario:
     #: every series the scenario is a point of (``series`` is the first): a nominal run can
     #: be the shared point of several series
     points: list = field(default_factory=list)
+    #: what the scenario needs of a SITL process (``compare --sitl``): {"autopilot": None or
+    #: px4|ardupilot, "frame": quad|hexa, "params": {NAME: value}}
+    sitl: dict = field(default_factory=lambda: {"autopilot": None, "frame": "quad",
+                                                "params": {}})
 
     def point(self, name):
         """The scenario's point ({name, value, unit}) of series ``name``, or None."""
@@ -135,6 +146,8 @@ class Experiment:
     seeds: list
     goals: list
     breaks: list
+    #: the experiment's ``sitl:`` section: {autopilot: {"path", "params"}} (``compare --sitl``)
+    sitl: dict = field(default_factory=dict)
 
     def runs(self, seeds=None):
         """Every (scenario index, controller index, seed) of the matrix, scenario-major."""
@@ -188,7 +201,7 @@ def _merged(defaults, item, skip=()):
 
 #: scenario keys that belong to the experiment, not to the scenario's mission
 SCENARIO_KEYS = ("name", "group", "note", "settle_s", "series", "thesis", "attitude_controller",
-                 "sample_rate_hz", "input_model_scale")
+                 "sample_rate_hz", "input_model_scale", "sitl")
 #: the physics rate of the bundled vehicle (Hz): a scenario's sample rate divides it
 PHYSICS_RATE_HZ = 1000.0
 
@@ -273,6 +286,7 @@ def experiment_from_text(source, text):
                       < 1e-9, f"must divide the vehicle's {PHYSICS_RATE_HZ:g} Hz physics rate "
                               "(25, 50, 100, 125, 200, 250, 500 Hz ...)")
         model_scale = sec.number("input_model_scale", 1.0, gt=0.0, le=10.0)
+        sitl = read_scenario_sitl(sec)
         # the rest is a mission (without a controller, which the matrix supplies); its own
         # section refuses unknown keys
         msec = Section(_merged(defaults, raw, SCENARIO_KEYS), source, where, line=sec.line())
@@ -284,7 +298,7 @@ def experiment_from_text(source, text):
             sec.error("attitude_controller", "match flies other attitude loops than the PX4-like "
                                              "one sim.attitude_bandwidth_scale scales")
         scenarios.append(Scenario(sname, group, mission, settle, series, thesis, match, note,
-                                  rate, model_scale, points))
+                                  rate, model_scale, points, sitl))
     if not scenarios:
         top.error("scenarios", "must list at least one scenario")
     goals = []
@@ -326,9 +340,10 @@ def experiment_from_text(source, text):
                      f"must be one of the series' values ({shown})")
         bs.finish()
         breaks.append(b)
+    sitl = read_sitl_section(top)
     top.finish()
     return Experiment(name, source, text, description, controllers, scenarios, seeds, goals,
-                      breaks)
+                      breaks, sitl)
 
 
 def goal_covers(g, name):

@@ -22,6 +22,23 @@ TABLE_METRICS = (
     ("thrust sat. s", "thrust_saturated_s"),
     ("limited s", "limited_s"),
 )
+#: a run against a SITL process (``compare --sitl``): the error by the autopilot's estimate (the
+#: controller's: estimate - reference), by the simulator's truth (truth - reference), and the
+#: estimator's own (truth - estimate, over the scored span)
+SITL_METRICS = TABLE_METRICS[:5] + (
+    ("truth RMS x", "truth.after_settle.rms_error_xyz_m.0"),
+    ("truth RMS y", "truth.after_settle.rms_error_xyz_m.1"),
+    ("truth RMS z", "truth.after_settle.rms_error_xyz_m.2"),
+    ("truth RMS 3-D", "truth.after_settle.rms_error_m"),
+    ("truth max 3-D", "truth.after_settle.max_error_m"),
+    ("estimator RMS 3-D", "estimator_error.rms_m"),
+    ("estimator max 3-D", "estimator_error.max_m"),
+)
+
+
+def table_metrics(meta):
+    """The columns of a report's scenario tables: the SITL ones for ``compare --sitl``."""
+    return SITL_METRICS if meta.get("via") == "sitl" else TABLE_METRICS
 
 
 def grouped(exp, records):
@@ -81,8 +98,8 @@ def thesis_cell(sc, c):
     return "; ".join(parts)
 
 
-def scenario_table(exp, sc, groups):
-    cols = ["controller"] + [name for name, _ in TABLE_METRICS] + ["status"]
+def scenario_table(exp, sc, groups, metrics=TABLE_METRICS):
+    cols = ["controller"] + [name for name, _ in metrics] + ["status"]
     has_thesis = bool(sc.thesis)
     if has_thesis:
         cols.append("thesis reports (m)")
@@ -90,7 +107,7 @@ def scenario_table(exp, sc, groups):
     for c in exp.controllers:
         recs = groups.get((sc.name, c.name), [])
         cells = [c.name]
-        for _, path in TABLE_METRICS:
+        for _, path in metrics:
             cells.append(_fmt(*stat(recs, path), digits=2 if path.endswith("_s") else 3))
         cells.append(_status(recs, c.kind == "oracle"))
         if has_thesis:
@@ -339,34 +356,10 @@ def write_report(folder, exp, records, meta, logs, workers=1):
     L = [f"# {exp.name}", ""]
     if exp.description:
         L += [exp.description.strip(), ""]
-    ns = len(meta["seeds"])
-    L += [f"Experiment file `{exp.source}`; {counted(meta['runs'], 'run')} "
-          f"({counted(len(exp.scenarios), 'scenario')} x "
-          f"{counted(len(exp.controllers), 'controller')} x {counted(ns, 'seed')}), "
-          f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
-          f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
-          f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", ""]
-    fixed = [sc.name for sc in exp.scenarios if not sc.random]
-    if ns > 1 and fixed and not meta.get("rerun_identical"):
-        L += [f"The seed changes nothing in {len(fixed)} of the {len(exp.scenarios)} scenarios "
-              "(no turbulence, no sensor noise): each of their runs was flown once, and its "
-              f"record stands for every seed ({meta.get('runs_flown', meta['runs'])} runs "
-              "flown; `--rerun-identical` flies them all).", ""]
-    L += ["Errors are position errors in metres: RMS and max over the tracking window (after "
-          "each scenario's settling time, which covers the takeoff and the joining transient), "
-          "mean ± std over seeds; `joining max` is the largest error before it. `roll/pitch osc. "
-          "deg` is the 99th percentile of the vehicle's roll or pitch about its 1 s running "
-          "mean over the same window (the worse axis; in process only): a limit cycle shows "
-          "there whatever the error says; `osc. regularity` how alike that swing is to itself "
-          "three of its periods later (its autocorrelation: a limit cycle 0.6 or more, 1 "
-          "when sustained; a resonance driven by noise or wind less). `effort` is the "
-          "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
-          "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
-          "command. A run is **infeasible** when the scenario demands more thrust than the "
-          "vehicle has (reference acceleration minus the true disturbance, against the thrust "
-          "limit), or the controller's thrust sits at a limit, for more than "
-          f"{100 * SATURATION_SHARE:.0f} % of the tracking window, or the run stopped at a "
-          "safety limit.", ""]
+    if meta["via"] == "sitl":
+        L += sitl_header(exp, meta)
+    else:
+        L += matrix_header(exp, meta)
     goals = check_goals(exp, groups)
     if goals:
         L += ["## Goals", ""]
@@ -395,10 +388,63 @@ def write_report(folder, exp, records, meta, logs, workers=1):
         L += [f"### {sc.name}", ""]
         if sc.note:
             L += [sc.note.strip(), ""]
-        L += [scenario_table(exp, sc, groups), ""]
+        L += [scenario_table(exp, sc, groups, table_metrics(meta)), ""]
         if sc.name in figs:
             L += [f"![{sc.name}]({figs[sc.name]})", ""]
     (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def matrix_header(exp, meta):
+    """The report's opening lines for runs flown in process or over MAVLink in lockstep."""
+    ns = len(meta["seeds"])
+    L = [f"Experiment file `{exp.source}`; {counted(meta['runs'], 'run')} "
+         f"({counted(len(exp.scenarios), 'scenario')} x "
+         f"{counted(len(exp.controllers), 'controller')} x {counted(ns, 'seed')}), "
+         f"{'in process' if meta['via'] == 'inprocess' else 'over MAVLink in lockstep'}"
+         f"{' on ' + meta['scheduler'] if meta.get('scheduler') else ''}, "
+         f"{meta['wall_s']:.1f} s ({meta['runs_per_s']:.1f} runs/s).", ""]
+    fixed = [sc.name for sc in exp.scenarios if not sc.random]
+    if ns > 1 and fixed and not meta.get("rerun_identical"):
+        L += [f"The seed changes nothing in {len(fixed)} of the {len(exp.scenarios)} scenarios "
+              "(no turbulence, no sensor noise): each of their runs was flown once, and its "
+              f"record stands for every seed ({meta.get('runs_flown', meta['runs'])} runs "
+              "flown; `--rerun-identical` flies them all).", ""]
+    L += ["Errors are position errors in metres: RMS and max over the tracking window (after "
+          "each scenario's settling time, which covers the takeoff and the joining transient), "
+          "mean ± std over seeds; `joining max` is the largest error before it. `roll/pitch osc. "
+          "deg` is the 99th percentile of the vehicle's roll or pitch about its 1 s running "
+          "mean over the same window (the worse axis; in process only): a limit cycle shows "
+          "there whatever the error says; `osc. regularity` how alike that swing is to itself "
+          "three of its periods later (its autocorrelation: a limit cycle 0.6 or more, 1 "
+          "when sustained; a resonance driven by noise or wind less). `effort` is the "
+          "RMS commanded acceleration (m/s^2) after settling; `thrust sat. s` the time the thrust "
+          "setpoint sat at a limit; `limited s` the time the tilt or thrust limits cut the "
+          "command. A run is **infeasible** when the scenario demands more thrust than the "
+          "vehicle has (reference acceleration minus the true disturbance, against the thrust "
+          "limit), or the controller's thrust sits at a limit, for more than "
+          f"{100 * SATURATION_SHARE:.0f} % of the tracking window, or the run stopped at a "
+          "safety limit.", ""]
+    return L
+
+
+def sitl_header(exp, meta):
+    """The report's opening lines for runs flown against SITL processes."""
+    where = "; ".join(f"{ap}: {'the bundled vehicle (mavadrc sitl)' if path == 'bundled' else f'`{path}`'}"
+                      for ap, path in meta.get("sitl", {}).items())
+    return [f"Experiment file `{exp.source}`; {counted(meta['runs'], 'run')} "
+            f"({counted(len(exp.scenarios), 'scenario')} x "
+            f"{counted(len(exp.controllers), 'controller')} x "
+            f"{counted(len(meta['seeds']), 'repeat')}), each against a fresh SITL process in "
+            f"real time ({where}); {meta.get('runs_flown', 0)} flown in this session "
+            f"({meta['wall_s']:.0f} s), {meta.get('runs_skipped', 0)} finished before.", "",
+            "Each run's errors come three ways. By the autopilot's estimate (`RMS x` ... `max "
+            "3-D`): estimate - reference, the error the controller saw and answered: the "
+            "**controller's**. By the simulator's truth (`truth ...`): truth - reference, where "
+            "the vehicle really was. Between the two (`estimator ...`): truth - estimate, the "
+            "**estimator's** error, which no controller flying on the estimate can remove. "
+            "The first two are taken after each scenario's settling time (RMS and max, mean ± "
+            "std over repeats); the estimator's over the whole scored flight. A run is "
+            "**infeasible** when its flight ended early (a safety limit, a lost link).", ""]
 
 
 def _slug(name):
