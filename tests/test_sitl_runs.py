@@ -63,7 +63,7 @@ def test_the_shipped_experiment_tags_each_scenario_with_an_autopilot_that_can_fl
     exp = load_experiment("real_autopilots")
     aps = {sc.sitl["autopilot"] for sc in exp.scenarios}
     assert aps == {"px4", "ardupilot"}
-    assert [c.kind for c in exp.controllers] == ["pd", "pid", "adrc", "ladrc"]
+    assert [c.kind for c in exp.controllers] == ["pd", "pid", "adrc", "ladrc", "native"]
     assert exp.seeds == [0, 1, 2]
     winds = set()
     for sc in exp.scenarios:  # every wind maps onto its autopilot's parameters (PX4: calm)
