@@ -74,7 +74,7 @@ def test_the_shipped_experiment_tags_each_scenario_with_an_autopilot_that_can_fl
         else:
             assert p == {}
     assert winds == {(w, t) for w in (0.0, 4.2, 8.5, 12.0) for t in (0.0, 2.0)}
-    assert exp.sitl["px4"]["params"] == {"EKF2_HGT_REF": 2.0, "EKF2_RNG_CTRL": 2.0}
+    assert exp.sitl["px4"]["params"] == {}  # factory settings (the file says why)
 
 
 def test_a_wind_the_autopilot_cannot_model_is_refused_with_why():
