@@ -246,3 +246,15 @@ def test_a_compare_report_has_the_native_column(tmp_path):
     rows = [line for line in report.splitlines() if line.startswith("| native |")]
     assert len(rows) == 2 and "| ok |" in rows[0]
     assert "lift off" in rows[1]
+
+
+def test_a_native_record_draws_no_commands_of_its_own(tmp_path):
+    """The attitude and thrust of a native flight are the autopilot's, never sent: no
+    commands.png (it would be empty axes), and the disturbance figure says why it has no
+    estimate."""
+    from mavadrc.study.figures import plot_record
+
+    summary, folder = fly_native("hover", tmp_path / "rec")
+    paths = [Path(p).name for p in plot_record(folder, tmp_path / "fig")]
+    assert "commands.png" not in paths
+    assert {"path3d.png", "error.png", "disturbance.png"} <= set(paths)

@@ -9,6 +9,7 @@
                      (less the drag the observers model as a known input, which z3 leaves out)
     commands.png     thrust and attitude setpoint (roll, pitch, yaw in degrees); for a record also
                      the acceleration commanded against the one applied after the tilt/thrust limits
+                     (not for a ``native`` record: the autopilot's own controller made them)
     link.png         the interval between samples and their age (a record only)
 
 :func:`plot_record` reads a record folder (``controller.csv`` and ``summary.json``, see
@@ -895,6 +896,8 @@ def _plot_record(folder, out):
     controller = str(summary.get("controller") or "")
     if _finite(z3):
         note = None
+    elif controller == "native":
+        note = "native: the autopilot's own controller, no observer of mavadrc's"
     elif controller and controller.upper() != "PD":
         note = f"no observer estimate (z3) in the record ({controller})"
     else:
@@ -913,9 +916,10 @@ def _plot_record(folder, out):
     q = _cols(table, ["q_w", "q_x", "q_y", "q_z"], n)
     acc = (t, _cols(table, [f"acc_cmd_{a}" for a in ax3], n),
            _cols(table, [f"acc_applied_{a}" for a in ax3], n))
-    paths.append(draw_commands(out, t, q, table.get("thrust", np.full(n, math.nan)), acc, spans,
-                               title=_title(summary, "Commands"), xlabel=xlabel,
-                               window=_in_air(t, spans, summary)))
+    if controller != "native":  # (native: the attitude and thrust are the autopilot's, unsent)
+        paths.append(draw_commands(out, t, q, table.get("thrust", np.full(n, math.nan)), acc,
+                                   spans, title=_title(summary, "Commands"), xlabel=xlabel,
+                                   window=_in_air(t, spans, summary)))
     if "dt" in table and _finite(table["dt"]):
         paths.append(draw_link(out, t, table["dt"], table.get("sample_age"), spans,
                                title=_title(summary, "Samples"), xlabel=xlabel,
