@@ -235,17 +235,16 @@ def test_a_compare_report_has_the_native_column(tmp_path):
     assert all(r["delay_margin_s"] is None for r in native.values())
     hover = native["gusty hover"]
     assert hover["feasible"]
-    # the thesis's wind pushes the Crazyflie down harder than PX4's vertical integrator
-    # (MPC_Z_VEL_I_ACC 2) builds up in the 10 s the takeoff waits: reported, not hidden
+    # the thesis's wind asks more than the Crazyflie's thrust (every controller's runs are
+    # infeasible there): reported, not hidden
     stuck = native["thesis wind hover"]
-    assert not stuck["feasible"] and "lift off" in stuck["infeasible_reason"]
+    assert not stuck["feasible"] and stuck["infeasible_reason"]
     pd = next(r for r in records if r["controller"] == "PD" and r["scenario"] == "gusty hover")
     # PX4's default gains against the PD at wc 2.5 in 3 m/s of wind and light turbulence
     assert hover["after_settle"]["rms_error_m"] > pd["after_settle"]["rms_error_m"]
     report = (Path(folder) / "report.md").read_text()
     rows = [line for line in report.splitlines() if line.startswith("| native |")]
-    assert len(rows) == 2 and "| ok |" in rows[0]
-    assert "lift off" in rows[1]
+    assert len(rows) == 2 and "| ok |" in rows[0] and "infeasible" in rows[1]
 
 
 def test_a_native_record_draws_no_commands_of_its_own(tmp_path):
@@ -258,3 +257,15 @@ def test_a_native_record_draws_no_commands_of_its_own(tmp_path):
     paths = [Path(p).name for p in plot_record(folder, tmp_path / "fig")]
     assert "commands.png" not in paths
     assert {"path3d.png", "error.png", "disturbance.png"} <= set(paths)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(p.stem for p in MISSIONS.glob("*.yaml")))
+def test_native_flies_every_shipped_mission_in_lockstep(name, tmp_path):
+    """Every shipped mission, flown by the bundled vehicle's own position loop: landed and
+    disarmed, nothing aborted, the error bounded (the loop trails a moving reference by about
+    the attitude lag: 0.01-1 m measured, the thesis spiral's 5 m/s run-up the most)."""
+    summary, _ = fly_native(name, tmp_path)
+    assert summary["landed"] and summary["aborted"] == [], summary["aborted"]
+    assert summary["controller"] == "native"
+    assert summary["max_error_m"] < 2.0, summary["max_error_m"]

@@ -8,9 +8,10 @@ at :data:`~mavadrc.fast.inprocess.ARM_AT`, a target under the vehicle until the 
 at :data:`~mavadrc.fast.inprocess.MISSION_START` (or at the sample that shows it lifting off),
 then one target per period, the reference of the sample's time (float32, as
 SET_POSITION_TARGET_LOCAL_NED carries it), the heading turned from the vehicle's to the
-mission's at :data:`~mavadrc.mission.takeoff.YAW_RATE`, the takeoff's reference waiting for a
-vehicle still on the ground (:data:`~mavadrc.mission.takeoff.TAKEOFF_WAIT_M`) as the flight's
-does, and the flight's safety checks.  The autopilot's loop runs in Python here (its modes
+mission's at :data:`~mavadrc.mission.takeoff.YAW_RATE`, the takeoff's reference running as it
+does in the flight (the autopilot's loop lifts the vehicle; a run still on the ground
+:data:`~mavadrc.mission.takeoff.NATIVE_TAKEOFF_WAIT_S` into the mission ends there), and the
+flight's safety checks.  The autopilot's loop runs in Python here (its modes
 are Python in the bundled vehicle too), one period at a time: slower than the compiled loop of
 the companion's controllers, still several hundred times real time.
 
@@ -27,7 +28,6 @@ from mavadrc.control.rotations import wrap_pi
 from mavadrc.mission.takeoff import (
     GROUND_TARGET_BELOW_M,
     NATIVE_TAKEOFF_WAIT_S,
-    TAKEOFF_WAIT_M,
     YAW_RATE,
     lifted_off,
 )
@@ -87,27 +87,17 @@ def fly_native(mission, seed=None, wind=None, vehicle_options=None):
     rows = []
     status = I.STATUS_OK
     lifted = False
-    waited = 0.0
     while True:
         t_s = float(I.boot_seconds(tick0 + per * k, dt))
         pos, vel, yaw, roll, pitch = sample()
-        t = t_s - t0 - waited
+        t = t_s - t0
         r = traj.sample(min(t, traj.duration))
         ref_pos, ref_vel, ref_acc = r.pos, r.vel, r.acc
-        if not lifted and float(pos[2] - r.pos[2]) > TAKEOFF_WAIT_M:
-            # the takeoff's reference waits for a vehicle still on the ground (as long as the
-            # flight waits: mavadrc.flight.takeoff.NATIVE_TAKEOFF_WAIT_S)
-            if waited >= NATIVE_TAKEOFF_WAIT_S - 1e-9:
-                status = I.STATUS_GROUND
-                break
-            waited += h
-            t = t_s - t0 - waited
-            r = traj.sample(t)
-            ref_pos = np.array([r.pos[0], r.pos[1], origin[2] - TAKEOFF_WAIT_M])
-            ref_vel = np.array([r.vel[0], r.vel[1], 0.0])
-            ref_acc = np.array([r.acc[0], r.acc[1], 0.0])
         if not lifted and lifted_off(origin[2] - pos[2], vel[2]):
             lifted = True
+        if not lifted and t >= NATIVE_TAKEOFF_WAIT_S:  # as the flight ends it (Takeoff)
+            status = I.STATUS_GROUND
+            break
         if yaw_offset != 0.0:
             yaw_offset -= max(-YAW_RATE * h, min(YAW_RATE * h, yaw_offset))
         dist = v.true_disturbance()

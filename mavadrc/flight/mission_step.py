@@ -83,6 +83,9 @@ class MissionStep:
         self.landing.history(s, final)
         if not p.lifted:
             self.takeoff.check_liftoff(s, t)
+            why = self.takeoff.native_grounded(t) if self.steering.setpoints.native else None
+            if why is not None:
+                return escalate("ground", why)
         if p.waiting:
             why = self.takeoff.raise_thrust(s)
             if why is not None:

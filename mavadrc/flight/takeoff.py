@@ -143,19 +143,33 @@ class Takeoff:
         thrust the loop expected to lift it; running on, the reference left PX4 SIH at 1.4 kg
         (told 1.0) 1.1 m below it on the ground for 3.4 s, and it leapt after it at 0.4 m/s.
         (Taken over in the air, the flight starts lifted: never asked.)"""
+        if self.setpoints.native:
+            return False  # the autopilot's own takeoff: see native_grounded
         return float(s.pos[2] - r.pos[2]) > TAKEOFF_WAIT_M
 
-    def waiting_reference(self, s, rc):
+    def native_grounded(self, t):
+        """``native``: why the flight must end, still on the ground :data:`NATIVE_TAKEOFF_WAIT_S`
+        into the mission (None otherwise).  The autopilot's loop flies the takeoff's reference
+        as it runs, not held for the vehicle as the companion's own loops are: PX4 lifts a
+        vehicle by a target above it, and on PX4 SIH a target held 0.15 m above the takeoff
+        spot never lifted it: the height estimate rose past the target while the vehicle sat
+        still (SIH's truth 0.000 m up), and PX4 took its thrust back."""
+        if self.progress.lifted or t < NATIVE_TAKEOFF_WAIT_S:
+            return None
+        c = self.takeoff_cmd
+        refused = "" if c is None or not c.done or c.accepted else \
+            f" (its takeoff command answered {result_name(c.result)})"
+        return (f"the vehicle did not lift off: {t:.0f} s into the mission on the ground with "
+                f"the autopilot's position controller flying{refused}")
+
+    @staticmethod
+    def waiting_reference(s, rc):
         """The reference a waiting takeoff flies to: ``rc`` held vertically at rest
         :data:`~mavadrc.mission.takeoff.TAKEOFF_WAIT_M` above the vehicle's estimate.  Held
         where the wait began instead, an estimate sinking on the ground (PX4 SIH's read 0.3 m of
         descent in a second of waiting) grew the error the vertical observer learns a weight
         from: it learnt 5.9 m/s^2 where 3.9 were missing, and the lift-off overshot 0.42 m."""
-        # native: at the takeoff spot's height instead.  The autopilot's loop follows a target
-        # wherever it is put, and one kept above an estimate that climbs climbed with it: on
-        # PX4 SIH the range finder disputed the lift-off while the estimate rose 0.6 m
-        base = self.progress.origin[2] if self.setpoints.native else float(s.pos[2])
-        pos = np.array([rc.pos[0], rc.pos[1], base - TAKEOFF_WAIT_M])
+        pos = np.array([rc.pos[0], rc.pos[1], float(s.pos[2]) - TAKEOFF_WAIT_M])
         vel = np.array([rc.vel[0], rc.vel[1], 0.0])
         acc = np.array([rc.acc[0], rc.acc[1], 0.0])
         return Reference(pos, vel, acc, rc.yaw, rc.yaw_rate)
@@ -166,14 +180,6 @@ class Takeoff:
         off.  Why the flight must end, once it has sat at the bound for TAKEOFF_WAIT_MAX_S."""
         ctrl = self.choice.ctrl
         step = s.dt if s.dt is not None else self.choice.h
-        if self.setpoints.native:  # the autopilot's own takeoff: it lifts off, or not
-            if self.wait + 1e-9 < NATIVE_TAKEOFF_WAIT_S:
-                return None
-            c = self.takeoff_cmd
-            refused = "" if c is None or not c.done or c.accepted else \
-                f" (its takeoff command answered {result_name(c.result)})"
-            return (f"the vehicle did not lift off: {self.wait:.0f} s on the ground with the "
-                    f"autopilot's position controller flying{refused}")
         if self.wait <= step + 1e-9:
             self.notices.say(f"still on the ground {TAKEOFF_WAIT_M:g} m below the takeoff's "
                              "reference: the reference waits, the thrust rises until it lifts "
@@ -216,10 +222,7 @@ class Takeoff:
         if lifted_off(self.progress.origin[2] - s.pos[2], s.vel[2]) and not self.range_grounded(s):
             self.progress.lifted = True
             self.liftoff_s = t
-            if self.wait > 0.0 and self.setpoints.native:
-                self.notices.say(f"lifted off: the takeoff waited {self.wait:.1f} s for the "
-                                 "autopilot's")
-            elif self.wait > 0.0:
+            if self.wait > 0.0:
                 self.liftoff_hover = ctrl.hover_thrust_estimate
                 self.notices.say(f"lifted off: the takeoff waited {self.wait:.1f} s, the "
                                  f"hover thrust raised to {ctrl.hover_thrust_estimate:.3f} "

@@ -69,7 +69,7 @@ def lifted_f32(pos, vel, origin, rules):
 #: below the vehicle, so the autopilot's position loop holds it down instead of starting a
 #: takeoff (PX4 mc_pos_control takes off in OFFBOARD once a target is above the vehicle)
 GROUND_TARGET_BELOW_M = 0.5
-#: ``controller: native``: s the takeoff's reference waits for the autopilot's own takeoff to
-#: lift the vehicle off before the flight ends (PX4 ramps its takeoff over MPC_TKO_RAMP_T,
-#: ArduCopter spools up and climbs on its takeoff command)
+#: ``controller: native``: s into the mission a vehicle still on the ground ends the flight (the
+#: autopilot's own takeoff: PX4 ramps it over MPC_TKO_RAMP_T, ArduCopter spools up and climbs on
+#: its takeoff command; its takeoff's reference is not held for it)
 NATIVE_TAKEOFF_WAIT_S = 10.0
