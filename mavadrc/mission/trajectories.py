@@ -389,9 +389,11 @@ class FigureEight(_Planar):
         a, b, w = self.a, self.b, self.omega
         th = w * t
         s1, c1, s2, c2 = np.sin(th), np.cos(th), np.sin(2.0 * th), np.cos(2.0 * th)
+        # each factor grouped as the horizontal eight has always computed it (b = a/2 there):
+        # the same bits, so its flights' records stay byte for byte what they were
         return (np.stack([a * s1, b * s2], axis=1),
-                w * np.stack([a * c1, 2.0 * b * c2], axis=1),
-                -w * w * np.stack([a * s1, 4.0 * b * s2], axis=1))
+                np.stack([(a * w) * c1, (2.0 * b * w) * c2], axis=1),
+                np.stack([(-a * w * w) * s1, (-2.0 * b * w * w) * (2.0 * s2)], axis=1))
 
     def _horizontal(self, t):
         shape = self._shape(t)
