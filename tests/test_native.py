@@ -269,3 +269,12 @@ def test_native_flies_every_shipped_mission_in_lockstep(name, tmp_path):
     assert summary["landed"] and summary["aborted"] == [], summary["aborted"]
     assert summary["controller"] == "native"
     assert summary["max_error_m"] < 2.0, summary["max_error_m"]
+
+
+def test_tune_refuses_the_native_controller_with_the_reason():
+    """Nothing of mavadrc's to search: its gains are the autopilot's parameters."""
+    from mavadrc.study.tune import tune
+
+    with pytest.raises(ValueError, match="no gains of mavadrc's to search"):
+        tune(MISSIONS.parent / "experiments" / "thesis.yaml", "native", maxiter=1,
+             stream=io.StringIO())

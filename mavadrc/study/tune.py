@@ -175,6 +175,10 @@ def tune(path, controller, *, scenarios="*", seeds=None, maxiter=20, popsize=8, 
     controller = named
     j = names.index(controller)
     kind = exp.controllers[j].kind
+    if kind == "native":
+        raise ValueError(f"--controller {controller}: the autopilot's own position controller "
+                         "has no gains of mavadrc's to search (its gains are the autopilot's "
+                         "parameters: PX4 MPC_*, ArduCopter PSC_*)")
     patterns = [scenarios] if isinstance(scenarios, str) else list(scenarios)
     idx = [i for i, sc in enumerate(exp.scenarios)
            if any(fnmatch.fnmatchcase(sc.name, p) for p in patterns)]
