@@ -12,3 +12,10 @@ class FlightError(RuntimeError):
 
 class LinkError(RuntimeError):
     """The link or the vehicle did not do what the flight needs; the message says what."""
+
+
+def os_error_text(exc):
+    """An OSError as a command says it: "PATH: reason" where it names a file, else its text."""
+    if exc.filename and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    return str(exc)

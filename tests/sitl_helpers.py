@@ -250,3 +250,17 @@ def wait_rows(folder_glob, n, timeout=60.0):
                 pass
         time.sleep(0.05)
     raise AssertionError("the mission did not start")
+
+
+def tlog_messages(folder, types=None):
+    """The messages of a flight record's ``flight.tlog``, in order (what the companion sent and
+    what it heard); ``types``: only those MAVLink message names."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
+    out = []
+    while True:
+        m = log.recv_match(type=types, blocking=False)
+        if m is None:
+            return out
+        out.append(m)

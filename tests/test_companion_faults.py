@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 from short_flights import FAST_PX4, fly_through, lossy_vehicle, short_mission, stop
-from sitl_helpers import Client, free_udp_port, start_vehicle, wait_until
+from sitl_helpers import Client, free_udp_port, start_vehicle, tlog_messages, wait_until
 
 from mavadrc.flight.flight import Flight
 from mavadrc.flight.fly import fly
@@ -377,14 +377,8 @@ def test_timeout_covers_the_whole_flight_and_the_landing(tmp_path):
 
 def sent_by_companion(folder):
     """Message types the companion sent in a flight record (component 191), with commands."""
-    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
-    out = []
-    while True:
-        m = log.recv_match(blocking=False)
-        if m is None:
-            return out
-        if m.get_srcComponent() == M.MAV_COMP_ID_ONBOARD_COMPUTER:
-            out.append((m.get_type(), getattr(m, "command", None)))
+    return [(m.get_type(), getattr(m, "command", None)) for m in tlog_messages(folder)
+            if m.get_srcComponent() == M.MAV_COMP_ID_ONBOARD_COMPUTER]
 
 
 @pytest.mark.realtime

@@ -26,7 +26,7 @@ from mavadrc.mavlink.sequence import (
 from mavadrc.mission.config import load_mission
 from mavadrc.mission.takeoff import GROUND_TARGET_BELOW_M
 from sim.firmware.position import Navigator
-from sitl_helpers import start_vehicle
+from sitl_helpers import start_vehicle, tlog_messages
 
 MISSIONS = Path(__file__).resolve().parent.parent / "configs" / "missions"
 M = mavutil.mavlink
@@ -36,18 +36,6 @@ def fly_native(name, tmp_path, **kw):
     kw.setdefault("lockstep", True)
     return fly(load_mission(MISSIONS / f"{name}.yaml"), kind="native", out=tmp_path,
                progress=False, stream=kw.pop("stream", io.StringIO()), **kw)
-
-
-def sent(folder, kinds):
-    """The messages of ``kinds`` in the flight's tlog, in order (what the companion sent and
-    what it heard)."""
-    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
-    out = []
-    while True:
-        m = log.recv_match(type=kinds)
-        if m is None:
-            return out
-        out.append(m)
 
 
 # --- the parts ------------------------------------------------------------------------------------
@@ -137,7 +125,7 @@ def test_native_flies_the_hover_on_position_targets_alone(tmp_path):
     assert summary["touchdown_speed_mps"] < 0.5
     assert summary["max_error_m"] < 0.03  # measured 0.011 m: PX4's default gains, no wind
     assert summary["delay_margin_s"] is None  # the autopilot's loop: not ours to know
-    msgs = sent(folder, ["SET_POSITION_TARGET_LOCAL_NED", "SET_ATTITUDE_TARGET"])
+    msgs = tlog_messages(folder, ["SET_POSITION_TARGET_LOCAL_NED", "SET_ATTITUDE_TARGET"])
     assert msgs and all(m.get_type() == "SET_POSITION_TARGET_LOCAL_NED" for m in msgs)
     assert {m.type_mask for m in msgs} == {0x800} and {m.coordinate_frame for m in msgs} == {1}
     # the controller record has the reference and the estimate, no commanded attitude or thrust
@@ -153,11 +141,12 @@ def test_native_on_ardupilot_takes_off_by_command_then_flies_the_targets(tmp_pat
     assert summary["landed"] and summary["aborted"] == [], summary["aborted"]
     assert summary["max_error_m"] < 0.2  # measured 0.143 m (the takeoff outruns the reference)
     assert "takeoff to 1.5 m asked" in out.getvalue()
-    cmds = [m for m in sent(folder, ["COMMAND_LONG"]) if m.command == M.MAV_CMD_NAV_TAKEOFF]
+    commands = tlog_messages(folder, ["COMMAND_LONG"])
+    cmds = [m for m in commands if m.command == M.MAV_CMD_NAV_TAKEOFF]
     assert cmds and cmds[0].param7 == pytest.approx(1.5)
-    modes = [m.param2 for m in sent(folder, ["COMMAND_LONG"]) if m.command == M.MAV_CMD_DO_SET_MODE]
+    modes = [m.param2 for m in commands if m.command == M.MAV_CMD_DO_SET_MODE]
     assert modes[0] == AP_GUIDED  # not GUIDED_NOGPS: GUIDED takes position targets
-    assert not sent(folder, ["SET_ATTITUDE_TARGET"])
+    assert not tlog_messages(folder, ["SET_ATTITUDE_TARGET"])
 
 
 SHORT_AP = """name: short ardupilot hover
@@ -189,7 +178,8 @@ def test_in_real_time_arducopter_gets_no_target_before_it_has_left_the_ground(tm
         srv.stop()
     assert summary["landed"] and summary["aborted"] == [], summary["aborted"]
     assert summary["controller"] == "native" and summary["max_error_m"] < 0.25
-    msgs = sent(folder, ["COMMAND_LONG", "SET_POSITION_TARGET_LOCAL_NED", "LOCAL_POSITION_NED"])
+    msgs = tlog_messages(folder, ["COMMAND_LONG", "SET_POSITION_TARGET_LOCAL_NED",
+                                  "LOCAL_POSITION_NED"])
     k = next(i for i, m in enumerate(msgs) if m.get_type() == "COMMAND_LONG"
              and m.command == M.MAV_CMD_NAV_TAKEOFF)
     first = next(i for i, m in enumerate(msgs) if i > k

@@ -4,7 +4,7 @@ import sys
 import time
 
 from mavadrc.design.identify import needs_design_lag
-from mavadrc.errors import FlightError, LinkError, UsageError
+from mavadrc.errors import FlightError, LinkError, UsageError, os_error_text
 from mavadrc.flight.console import guarded, interrupt_exit_status, interrupt_word, ticking
 from mavadrc.flight.fly import Interrupted, fly, interrupt_status, interrupted
 from mavadrc.flight.summary import print_table
@@ -58,8 +58,7 @@ def _main(args):
         print(f"mavadrc fly: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
-        print(f"mavadrc fly: {what}", file=sys.stderr)
+        print(f"mavadrc fly: {os_error_text(exc)}", file=sys.stderr)
         return 2
     except Interrupted as exc:
         print(f"\nmavadrc fly: {exc}", file=sys.stderr)

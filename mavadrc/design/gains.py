@@ -232,8 +232,6 @@ MARGIN_SHARE = 0.75
 def built(spec, hover, kind, rate, gains):
     """The controller of ``kind`` with ``gains`` at ``rate`` (Hz) and its delay margin (None
     for ``native``: the autopilot's loop, whose margin the companion does not know)."""
-    if kind == "native":
-        return NativeController(hover, math.radians(spec.tilt_max_deg), 1.0 / rate), None
     ctrl = make_controller(spec, hover_thrust=hover, kind=kind, rate_hz=rate, gains=gains)
     return ctrl, delay_margin(ctrl)
 
@@ -485,8 +483,6 @@ def spec_margin(spec, kind=None, vehicle=None, attitude_controller="px4"):
     """:func:`delay_margin` of a mission's controller spec (cached: an experiment asks for the
     same few controllers in every run)."""
 
-    if (kind or spec.kind) == "native":
-        return None  # the autopilot's own loop: not the companion's to know
     key = (repr(spec), kind, repr(vehicle), attitude_controller)
     if key not in _SPEC_MARGINS:
         ctrl = make_controller(spec, hover_thrust=0.5, kind=kind, vehicle=vehicle,

@@ -229,7 +229,10 @@ def delay_margin(ctrl, tau=None, delay=None, max_extra_s=MAX_EXTRA_S, order=1, k
     ``order``: the plant's lag is that many equal lags ``tau`` (2: the identified response,
     :mod:`mavadrc.design.identify`).
     ``ctrl``: a :class:`mavadrc.control.position.PositionController`, at rest or not (its state
-    is not touched)."""
+    is not touched); None for ``native`` (the autopilot's own loop: not the companion's to
+    know)."""
+    if ctrl.kind == "native":
+        return None
     tau, delay, order = _own(ctrl, tau, delay, order)
     h = float(ctrl._P[0, K.P_H])
     n0 = int(round(delay / h))

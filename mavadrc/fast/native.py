@@ -84,15 +84,17 @@ def fly_native(mission, seed=None, wind=None, vehicle_options=None):
     t0 = t_s
     yaw_offset = wrap_pi(yaw - float(traj.sample(0.0).yaw))
     sf = mission.safety
-    rows = []
+    # one row per period until the mission time reaches its end (the samples' millisecond
+    # times put that at most a period or two past duration / h)
+    log = np.full((int(math.ceil(traj.duration / h)) + 3, I.NLOG), math.nan)
+    j = 0
     status = I.STATUS_OK
     lifted = False
-    while True:
+    while j < len(log):
         t_s = float(I.boot_seconds(tick0 + per * k, dt))
         pos, vel, yaw, roll, pitch = sample()
         t = t_s - t0
         r = traj.sample(min(t, traj.duration))
-        ref_pos, ref_vel, ref_acc = r.pos, r.vel, r.acc
         if not lifted and lifted_off(origin[2] - pos[2], vel[2]):
             lifted = True
         if not lifted and t >= NATIVE_TAKEOFF_WAIT_S:  # as the flight ends it (Takeoff)
@@ -101,9 +103,9 @@ def fly_native(mission, seed=None, wind=None, vehicle_options=None):
         if yaw_offset != 0.0:
             yaw_offset -= max(-YAW_RATE * h, min(YAW_RATE * h, yaw_offset))
         dist = v.true_disturbance()
-        v.set_position_target(pos=I.f32(ref_pos), vel=I.f32(ref_vel), acc=I.f32(ref_acc),
+        v.set_position_target(pos=I.f32(r.pos), vel=I.f32(r.vel), acc=I.f32(r.acc),
                               yaw=float(I.f32(r.yaw + yaw_offset)))
-        row = np.full(I.NLOG, math.nan)
+        row = log[j]
         row[I.L_T] = t
         row[I.L_REF:I.L_REF + 3] = r.pos
         row[I.L_POS:I.L_POS + 3] = pos
@@ -123,7 +125,7 @@ def fly_native(mission, seed=None, wind=None, vehicle_options=None):
         row[I.L_ACC_CMD:I.L_ACC_CMD + 3] = out[G.NO:G.NO + 3]
         row[I.L_ACC:I.L_ACC + 3] = out[G.O_ACC:G.O_ACC + 3]
         row[I.L_WRENCH:I.L_WRENCH + 4] = v.wrench
-        rows.append(row)
+        j += 1
         k += 1
         north, east = pos[0] - origin[0], pos[1] - origin[1]
         alt = -(pos[2] - origin[2])
@@ -135,4 +137,4 @@ def fly_native(mission, seed=None, wind=None, vehicle_options=None):
             break
         if t >= traj.duration:
             break
-    return I.InProcessRun(np.array(rows), phases, traj.duration, status, t0, hover, None)
+    return I.InProcessRun(log[:j], phases, traj.duration, status, t0, hover, None)

@@ -83,7 +83,7 @@ class MissionStep:
         self.landing.history(s, final)
         if not p.lifted:
             self.takeoff.check_liftoff(s, t)
-            why = self.takeoff.native_grounded(t) if self.steering.setpoints.native else None
+            why = self.takeoff.native_grounded(t)
             if why is not None:
                 return escalate("ground", why)
         if p.waiting:

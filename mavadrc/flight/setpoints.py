@@ -59,6 +59,8 @@ class Setpoints:
         """A level setpoint at zero thrust (the motors at idle) for the sample at ``t``: the
         stream PX4 wants before OFFBOARD, harmless to a vehicle on the ground (``native``: a
         target under it)."""
+        if self.native:
+            return self.hold(t, yaw, ground=True)
         self.send(t, level_quat(yaw), 0.0)
 
     def hold(self, t, yaw, ground=False, kick=False):

@@ -148,13 +148,14 @@ class Takeoff:
         return float(s.pos[2] - r.pos[2]) > TAKEOFF_WAIT_M
 
     def native_grounded(self, t):
-        """``native``: why the flight must end, still on the ground :data:`NATIVE_TAKEOFF_WAIT_S`
-        into the mission (None otherwise).  The autopilot's loop flies the takeoff's reference
+        """``native``: why the flight must end, still on the ground
+        :data:`NATIVE_TAKEOFF_WAIT_S` into the mission (None otherwise, and for every other
+        controller).  The autopilot's loop flies the takeoff's reference
         as it runs, not held for the vehicle as the companion's own loops are: PX4 lifts a
         vehicle by a target above it, and on PX4 SIH a target held 0.15 m above the takeoff
         spot never lifted it: the height estimate rose past the target while the vehicle sat
         still (SIH's truth 0.000 m up), and PX4 took its thrust back."""
-        if self.progress.lifted or t < NATIVE_TAKEOFF_WAIT_S:
+        if not self.setpoints.native or self.progress.lifted or t < NATIVE_TAKEOFF_WAIT_S:
             return None
         c = self.takeoff_cmd
         refused = "" if c is None or not c.done or c.accepted else \

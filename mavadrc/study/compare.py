@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from mavadrc.errors import UsageError
+from mavadrc.errors import UsageError, os_error_text
 from mavadrc.flight.console import Steps, counted, ticking
 from mavadrc.study.experiment import load_experiment, run_task
 from mavadrc.study.pool import default_workers, process_pool, stop_pool
@@ -257,22 +257,23 @@ def runs_line(runs, flown, wall):
     return text + ")"
 
 
-def main(args):
+def command_status(run, interrupted, failures=()):
+    """The exit status of ``mavadrc compare`` running ``run()`` (it returns (folder, experiment,
+    records)): 0, the summary table printed; 130 on Ctrl-C, ``interrupted`` said; 1 for an
+    exception of ``failures`` (what could not be run); 2 for a file or an option that cannot be
+    run as given.  Each is said in one line."""
     from sim.yamlio import ConfigError
 
     try:
-        folder, exp, records = compare(args.experiment, out=args.out, seeds=args.seeds,
-                                       workers=args.workers, scheduler=args.scheduler,
-                                       via=args.via or "inprocess", figures=not args.no_figures,
-                                       progress=not args.quiet,
-                                       rerun_identical=args.rerun_identical)
+        _, exp, records = run()
     except KeyboardInterrupt:
-        print("\nmavadrc compare: interrupted: the workers were stopped, no report written",
-              file=sys.stderr)
+        print(f"\nmavadrc compare: interrupted: {interrupted}", file=sys.stderr)
         return 130
+    except failures as exc:
+        print(f"mavadrc compare: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
-        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
-        print(f"mavadrc compare: {what}", file=sys.stderr)
+        print(f"mavadrc compare: {os_error_text(exc)}", file=sys.stderr)
         return 2
     except (ConfigError, ValueError) as exc:
         print(f"mavadrc compare: {exc}", file=sys.stderr)
@@ -281,3 +282,12 @@ def main(args):
 
     print(summary_table(exp, records))
     return 0
+
+
+def main(args):
+    return command_status(
+        lambda: compare(args.experiment, out=args.out, seeds=args.seeds, workers=args.workers,
+                        scheduler=args.scheduler, via=args.via or "inprocess",
+                        figures=not args.no_figures, progress=not args.quiet,
+                        rerun_identical=args.rerun_identical),
+        "the workers were stopped, no report written")

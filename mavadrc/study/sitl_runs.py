@@ -28,6 +28,7 @@ import yaml
 
 from mavadrc.errors import UsageError
 from mavadrc.flight.console import Steps, counted
+from mavadrc.flight.embedded import plain
 from mavadrc.study.experiment import MATCHING_ATTITUDE, SCENARIO_KEYS
 from mavadrc.study.sitl_config import (
     AUTOPILOT_NAMES,
@@ -109,7 +110,7 @@ def sitl_plan(exp, i, j, seed, autopilot, given, run_dir):
                 Path(_wind_file(m.wind)).read_text())
             path = Path(run_dir) / "wind.yaml"
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(yaml.safe_dump(_plain(wind)))
+            path.write_text(yaml.safe_dump(plain(wind)))
             args += ["--wind", str(path)]
         if m.noise:
             args.append("--noise")
@@ -130,17 +131,9 @@ def _wind_file(name):
     return config_path(name, "wind")
 
 
-def _plain(x):
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_plain(v) for v in x]
-    return x
-
-
 def run_key(doc, plan):
     """A digest of what decides a run: its mission and its SITL's settings."""
-    text = json.dumps({"mission": _plain(doc), "plan": dataclasses.asdict(plan)},
+    text = json.dumps({"mission": plain(doc), "plan": dataclasses.asdict(plan)},
                       sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -238,7 +231,7 @@ def fly_run(exp, i, j, seed, autopilot, given, out, ready_timeout, say):
     key = run_key(doc, plan)
     run_dir.mkdir(parents=True, exist_ok=True)
     mission_path = run_dir / "mission.yaml"
-    mission_path.write_text(yaml.safe_dump(_plain(doc), sort_keys=False))
+    mission_path.write_text(yaml.safe_dump(plain(doc), sort_keys=False))
     traj, _ = exp.mission(i, j).build_trajectory()
     timeout = traj.duration + FLIGHT_MARGIN_S
     flight_out = run_dir / "flight"
@@ -413,32 +406,15 @@ def wants_sitl(args):
 
 
 def main(args):
+    from mavadrc.study.compare import command_status
     from mavadrc.study.sitl_launch import SitlError
-    from sim.yamlio import ConfigError
 
     if args.via is not None or args.scheduler or args.workers:
         print("mavadrc compare: --sitl flies one run at a time against SITL processes: no "
               "--via, --scheduler nor --workers with it", file=sys.stderr)
         return 2
-    try:
-        _, exp, records = compare_sitl(args.experiment, args.sitl, out=args.out,
-                                       seeds=args.seeds, progress=not args.quiet,
-                                       ready_timeout=args.ready_timeout)
-    except KeyboardInterrupt:
-        print("\nmavadrc compare: interrupted: the SITL and the flight were stopped; the runs "
-              "finished are kept, and the same command goes on from there", file=sys.stderr)
-        return 130
-    except SitlError as exc:
-        print(f"mavadrc compare: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
-        print(f"mavadrc compare: {what}", file=sys.stderr)
-        return 2
-    except (ConfigError, ValueError) as exc:
-        print(f"mavadrc compare: {exc}", file=sys.stderr)
-        return 2
-    from mavadrc.study.report import summary_table
-
-    print(summary_table(exp, records))
-    return 0
+    return command_status(
+        lambda: compare_sitl(args.experiment, args.sitl, out=args.out, seeds=args.seeds,
+                             progress=not args.quiet, ready_timeout=args.ready_timeout),
+        "the SITL and the flight were stopped; the runs finished are kept, and the same "
+        "command goes on from there", (SitlError,))
